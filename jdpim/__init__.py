@@ -1,0 +1,35 @@
+"""jdpim: response PDFs of randomly excited vibro-impact oscillators by the Direct Probability
+Integral Method (DPIM), with Monte Carlo simulation and exact solutions beside it, in JAX."""
+
+from importlib.metadata import PackageNotFoundError, version
+
+import jax.numpy as jnp  # noqa: F401  (re-exported for doctests: ``jdpim.jnp``)
+
+from ._density import RULES as RULES
+from ._density import bandwidth as bandwidth
+from ._density import histogram as histogram
+from ._density import kde as kde
+from ._density import kde_2d as kde_2d
+from ._distributions import Normal as Normal
+from ._distributions import Uniform as Uniform
+from ._excitation import SpectralRepresentation as SpectralRepresentation
+from ._integrate import ImpactRule as ImpactRule
+from ._models import AbstractOscillator as AbstractOscillator
+from ._models import Oscillator as Oscillator
+from ._models import VibroImpactOscillator as VibroImpactOscillator
+from ._noise import WhiteNoise as WhiteNoise
+from ._pipelines import NonFiniteWarning as NonFiniteWarning
+from ._pipelines import dpim as dpim
+from ._pipelines import dpim_points as dpim_points
+from ._pipelines import monte_carlo as monte_carlo
+from ._pipelines import simulate as simulate
+from ._points import PointSet as PointSet
+from ._points import gf_discrepancy as gf_discrepancy
+from ._points import select_points as select_points
+from ._result import Result as Result
+from ._scene import Scene as Scene
+
+try:
+    __version__ = version("jdpim")
+except PackageNotFoundError:  # running from a source tree without installation
+    __version__ = "0.0.0"

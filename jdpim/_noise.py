@@ -1,0 +1,55 @@
+r"""Gaussian white noise ``E[xi_k(t) xi_l(t + s)] = 2 D_kl delta(s)``."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax.numpy as jnp
+import numpy as np
+
+from ._pytree import check_real, concrete, pytree_dataclass
+
+
+@pytree_dataclass
+class WhiteNoise:
+    r"""Zero-mean Gaussian white noise with intensity matrix ``D``: ``E[xi(t) xi(t+s)^T] = 2 D delta(s)``.
+
+    Args:
+        D: intensity, a scalar >= 0 (one source) or a symmetric positive-definite ``(m, m)`` matrix
+            (``m`` correlated sources). The two-sided power spectral density is ``S0 = D / pi``.
+
+    Example:
+        >>> import jdpim
+        >>> jdpim.WhiteNoise(D=0.03).n_sources
+        1
+    """
+
+    D: Any = 0.03
+
+    def __post_init__(self):
+        arr = concrete(self.D)
+        if arr is None:
+            return
+        if arr.ndim == 0:
+            check_real("D", arr, low=0.0)
+        elif arr.ndim == 2 and arr.shape[0] == arr.shape[1] and arr.shape[0] >= 1:
+            check_real("D", arr)
+            if not np.allclose(arr, arr.T, rtol=1e-10, atol=1e-12):
+                raise ValueError(f"D must be symmetric, got {arr.tolist()}")
+            eig = np.linalg.eigvalsh(arr)
+            if eig.min() <= 0:
+                raise ValueError(f"D must be positive definite; its smallest eigenvalue is {eig.min():g}")
+        else:
+            raise ValueError(f"D must be a scalar or a square (m, m) matrix, got shape {arr.shape}")
+
+    @property
+    def n_sources(self) -> int:
+        shape = jnp.shape(self.D)
+        return 1 if len(shape) == 0 else int(shape[0])
+
+    def mixing(self) -> jnp.ndarray:
+        """``L`` with ``L L^T = D``, shape ``(m, m)``: ``xi = L z`` for unit-intensity sources ``z``."""
+        D = jnp.asarray(self.D)
+        if D.ndim == 0:
+            return jnp.sqrt(D).reshape(1, 1)
+        return jnp.linalg.cholesky(D)

@@ -1,0 +1,194 @@
+"""The two pipelines, DPIM and Monte Carlo, sharing one chunked, jitted simulation core.
+
+Data flow: scene -> input rows (DPIM points or MC keys) -> spectral coefficients -> FFT excitation ->
+RK4 trajectories (only the saved times kept) -> :class:`Result`. Paths are processed in chunks
+(``lax.map``) so memory stays bounded; every chunk is a pure function of its rows.
+"""
+
+from __future__ import annotations
+
+import functools
+import warnings
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._distributions import elementary_ppf
+from ._excitation import gaussian_coefficients, random_function_coefficients, synthesize
+from ._integrate import integrate, with_parameters
+from ._points import PointSet, select_points
+from ._pytree import check_int, concrete
+from ._result import Result
+from ._scene import Scene
+
+MEMORY_BUDGET = 512 * 2**20  # bytes of excitation work per chunk
+
+
+class NonFiniteWarning(RuntimeWarning):
+    """Some paths produced non-finite states (blow-up); their mass is left out of every density."""
+
+
+def default_chunk_size(scene: Scene, n_paths: int) -> int:
+    """Paths per chunk so that one chunk's excitation work stays within ``MEMORY_BUDGET``."""
+    grid = scene.spectral_grid()
+    bytes_per_path = 4 * scene.float_dtype.itemsize * scene.n_sources * grid.n_fft
+    largest = max(1, min(n_paths, MEMORY_BUDGET // bytes_per_path))
+    n_chunks = -(-n_paths // largest)
+    return -(-n_paths // n_chunks)  # equal chunks: the least padding
+
+
+def _path_inputs(scene: Scene, kind: str, row):
+    """Spectral coefficients ``(m, K)`` and random-parameter values ``(n_random,)`` of one path."""
+    grid = scene.spectral_grid()
+    mixing = scene.noise.mixing().astype(scene.float_dtype)
+    m, n_rand = scene.n_sources, len(scene.random)
+    if kind == "dpim":
+        return random_function_coefficients(row[: 2 * m], grid, mixing), row[2 * m :]
+    key = jax.random.wrap_key_data(row)
+    k_noise, k_par = jax.random.split(key)
+    coeffs = gaussian_coefficients(k_noise, m, grid, mixing, scene.float_dtype)
+    u = jax.random.uniform(k_par, (n_rand,), scene.float_dtype, minval=1e-7, maxval=1.0 - 1e-7)
+    rand = jnp.stack([elementary_ppf(d, u[j]) for j, (_, d) in enumerate(scene.random)]) if n_rand else u
+    return coeffs, rand
+
+
+def _simulate_chunk(scene: Scene, kind: str, rows):
+    """States ``(n, S, 2)`` of one chunk of paths."""
+    dtype = scene.float_dtype
+    coeffs, rand = jax.vmap(functools.partial(_path_inputs, scene, kind))(rows)
+    excitation = synthesize(coeffs, scene.spectral_grid()).astype(dtype)
+    names = tuple(name for name, _ in scene.random)
+    model_names = tuple(n for n in names if n not in ("x0", "v0"))
+    model_cols = jnp.asarray([names.index(n) for n in model_names], dtype=jnp.int32)
+
+    def path_model(r):
+        return scene.model if r is None else with_parameters(scene.model, model_names, r[model_cols])
+
+    n = rows.shape[0]
+    x_default = scene.x0 if scene.x0 is not None else (scene.model.barrier if scene.model.has_barrier else 0.0)
+    x0 = rand[:, names.index("x0")] if "x0" in names else jnp.full((n,), x_default, dtype)
+    v0 = rand[:, names.index("v0")] if "v0" in names else jnp.full((n,), scene.v0, dtype)
+    save_steps = scene.save_steps
+    slot_of = {s: i for i, s in enumerate(save_steps)}
+    n_save = len(save_steps)
+    slots = np.array([slot_of.get(k + 1, n_save) for k in range(scene.n_steps)], dtype=np.int32)
+    return integrate(
+        path_model,
+        scene.impacts,
+        scene.dt,
+        x0.astype(dtype),
+        v0.astype(dtype),
+        excitation,
+        rand.astype(dtype),
+        jnp.asarray(slots),
+        n_save,
+        slot_of.get(0, n_save),
+    )
+
+
+@functools.partial(jax.jit, static_argnames=("kind", "chunk_size"))
+def simulate(scene: Scene, rows, *, kind: str, chunk_size: int):
+    """Saved states ``(N, S, 2)`` for input ``rows`` (``(N, d)`` DPIM points or ``(N, 2)`` MC key data).
+
+    Jitted; differentiable with respect to every traced leaf of ``scene``.
+    """
+    n = rows.shape[0]
+    pad = (-n) % chunk_size
+    padded = jnp.concatenate([rows, jnp.repeat(rows[:1], pad, axis=0)]) if pad else rows
+    chunks = padded.reshape(-1, chunk_size, *rows.shape[1:])
+    out = jax.lax.map(functools.partial(_simulate_chunk, scene, kind), chunks)
+    return out.reshape(-1, *out.shape[2:])[:n]
+
+
+def _finish(scene: Scene, states, weights, method: str) -> Result:
+    barrier = scene.model.barrier if scene.model.has_barrier else None
+    res = Result(
+        times=jnp.asarray(scene.save_at, scene.float_dtype),
+        states=states,
+        weights=weights,
+        barrier=barrier,
+        method=method,
+    )
+    counts = concrete(res.n_nonfinite())
+    if counts is not None and counts.any():
+        warnings.warn(
+            f"{int(counts.max())} of {res.n_paths} paths have non-finite states (per saved time: "
+            f"{counts.tolist()}); their probability is left out of the densities "
+            "(Result.lost_mass). Reduce dt or the excitation level.",
+            NonFiniteWarning,
+            stacklevel=3,
+        )
+    return res
+
+
+def dpim_points(scene: Scene, n_points: int = 1000) -> PointSet:
+    """The representative point set of a scene's input space (cached; see ``jdpim.select_points``)."""
+    return select_points(scene.input_distributions(), n_points)
+
+
+def dpim(
+    scene: Scene, n_points: int = 1000, *, points: PointSet | None = None, chunk_size: int | None = None
+) -> Result:
+    r"""Response PDFs by the Direct Probability Integral Method.
+
+    Representative points ``theta_q`` of the input space (two elementary variables per noise source,
+    then any random parameters) with assigned probabilities ``P_q`` are integrated as deterministic
+    trajectories; densities are ``p(y, t) = sum_q P_q N(y; y_q(t), sigma^2)`` (``Result.pdf``).
+
+    Args:
+        scene: the scene.
+        n_points: number of representative points (>= 2), if ``points`` is not given.
+        points: a precomputed :class:`PointSet` matching ``scene.input_distributions()``.
+        chunk_size: paths per chunk, or ``None`` for a memory-based default.
+
+    Returns:
+        :class:`Result` with ``weights = P_q``.
+
+    Example:
+        >>> import jdpim, numpy as np
+        >>> scene = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=2.0, dt=0.01)
+        >>> res = jdpim.dpim(scene, n_points=64)
+        >>> res.states.shape
+        (64, 1, 2)
+
+    References: Chen & Yang (2019), CMAME 357; Chen, Yang & Li (2016), Structural Safety 59.
+    """
+    if points is None:
+        points = dpim_points(scene, n_points)
+    elif not isinstance(points, PointSet):
+        raise TypeError(f"points must be a jdpim.PointSet, got {type(points).__name__}")
+    elif tuple(points.distributions) != scene.input_distributions():
+        raise ValueError(f"points.distributions do not match the scene's input space {scene.input_distributions()}")
+    n = points.n_points
+    chunk_size = default_chunk_size(scene, n) if chunk_size is None else check_int("chunk_size", chunk_size, low=1)
+    dtype = scene.float_dtype
+    states = simulate(scene, jnp.asarray(points.theta, dtype), kind="dpim", chunk_size=min(chunk_size, n))
+    return _finish(scene, states, jnp.asarray(points.weights, dtype), "dpim")
+
+
+def monte_carlo(scene: Scene, n_samples: int = 10_000, *, seed: int = 0, chunk_size: int | None = None) -> Result:
+    """Response PDFs by Monte Carlo simulation with Gaussian spectral coefficients (same excitation grid).
+
+    Args:
+        scene: the scene.
+        n_samples: number of sample paths (>= 2).
+        seed: PRNG seed; the same seed gives the same result whatever ``chunk_size``.
+        chunk_size: paths per chunk, or ``None`` for a memory-based default.
+
+    Returns:
+        :class:`Result` with equal weights ``1 / n_samples``.
+
+    Example:
+        >>> import jdpim
+        >>> scene = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=2.0, dt=0.01)
+        >>> jdpim.monte_carlo(scene, n_samples=32, seed=1).states.shape
+        (32, 1, 2)
+    """
+    n = check_int("n_samples", n_samples, low=2)
+    seed = check_int("seed", seed, low=0)
+    chunk_size = default_chunk_size(scene, n) if chunk_size is None else check_int("chunk_size", chunk_size, low=1)
+    keys = jax.random.key_data(jax.random.split(jax.random.key(seed), n))
+    states = simulate(scene, keys, kind="monte_carlo", chunk_size=min(chunk_size, n))
+    weights = jnp.full((n,), 1.0 / n, scene.float_dtype)
+    return _finish(scene, states, weights, "monte_carlo")

@@ -1,0 +1,96 @@
+"""Frozen dataclasses registered as JAX pytrees, and input validation helpers.
+
+Fields marked ``static_field()`` are pytree structure (they decide shapes or Python control flow and
+are hashed into the jit cache); every other field is a traced leaf that can be vmapped and
+differentiated. Validation runs in ``__post_init__`` on concrete values only, so that JAX can rebuild
+the classes with tracers or placeholders during transformations.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import numbers
+from typing import Any
+
+import jax
+import numpy as np
+
+
+def static_field(**kwargs: Any) -> Any:
+    """A dataclass field that is pytree structure (hashable, static under jit)."""
+    return dataclasses.field(metadata={"static": True}, **kwargs)
+
+
+def pytree_dataclass(cls: type) -> type:
+    """Make ``cls`` a frozen dataclass and register it as a pytree (static fields via metadata)."""
+    cls = dataclasses.dataclass(frozen=True)(cls)
+    fields = dataclasses.fields(cls)
+    meta = [f.name for f in fields if f.metadata.get("static", False)]
+    data = [f.name for f in fields if not f.metadata.get("static", False)]
+    return jax.tree_util.register_dataclass(cls, data_fields=data, meta_fields=meta)
+
+
+def concrete(value: Any) -> np.ndarray | None:
+    """``value`` as a NumPy array if it is a concrete number or array, else ``None`` (tracers, placeholders)."""
+    if value is None or isinstance(value, jax.core.Tracer):
+        return None
+    if isinstance(value, (numbers.Number, np.ndarray, np.generic, jax.Array, list, tuple)):
+        try:
+            arr = np.asarray(value)
+        except Exception:  # noqa: BLE001 - anything unconvertible is simply not validated here
+            return None
+        return arr if arr.dtype != object else None
+    return None
+
+
+def check_real(
+    name: str,
+    value: Any,
+    *,
+    low: float | None = None,
+    high: float | None = None,
+    low_open: bool = False,
+    high_open: bool = False,
+) -> None:
+    """Raise ``ValueError`` unless every element of ``value`` is finite and inside the stated range.
+
+    Tracers and placeholders pass unchecked (they are validated when the caller builds the object
+    with concrete values).
+    """
+    arr = concrete(value)
+    if arr is None:
+        return
+    if not np.issubdtype(arr.dtype, np.number) or np.iscomplexobj(arr):
+        raise TypeError(f"{name} must be real-valued, got {value!r}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} must be finite, got {value!r}")
+    lo_txt = "-inf" if low is None else f"{low:g}"
+    hi_txt = "inf" if high is None else f"{high:g}"
+    rng = f"{'(' if low_open or low is None else '['}{lo_txt}, {hi_txt}{')' if high_open or high is None else ']'}"
+    bad_low = low is not None and (np.any(arr <= low) if low_open else np.any(arr < low))
+    bad_high = high is not None and (np.any(arr >= high) if high_open else np.any(arr > high))
+    if bad_low or bad_high:
+        raise ValueError(f"{name} must lie in {rng}, got {value!r}")
+
+
+def check_int(name: str, value: Any, *, low: int) -> int:
+    """Return ``value`` as ``int`` after checking it is an integer ``>= low``."""
+    if isinstance(value, bool) or not isinstance(value, (numbers.Integral, np.integer)):
+        raise TypeError(f"{name} must be an integer, got {value!r}")
+    if value < low:
+        raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
+    return int(value)
+
+
+def check_grid(name: str, grid: Any) -> np.ndarray | None:
+    """Check a 1-D evaluation grid: non-empty, finite and strictly increasing. Returns it if concrete."""
+    arr = concrete(grid)
+    if arr is None:
+        return None
+    if arr.ndim != 1 or arr.size < 2:
+        raise ValueError(f"{name} must be a 1-D array with at least 2 points, got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} must be finite")
+    if not np.all(np.diff(arr) > 0):
+        raise ValueError(f"{name} must be strictly increasing")
+    return arr

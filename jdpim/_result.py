@@ -1,0 +1,119 @@
+"""The result of a DPIM or Monte Carlo run: weighted states at the saved times, and their densities."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax.numpy as jnp
+import numpy as np
+
+from . import _density
+from ._pytree import check_grid, check_real, concrete, pytree_dataclass, static_field
+from ._scene import saved_index
+
+VARIABLES = ("x", "v")
+
+
+@pytree_dataclass
+class Result:
+    """Weighted response states of ``N`` paths (DPIM points or Monte Carlo samples).
+
+    Attributes:
+        times: saved times, shape ``(S,)``, s.
+        states: ``(x, v)`` per path and saved time, shape ``(N, S, 2)`` (path axis leading).
+        weights: probability of each path, shape ``(N,)``, summing to 1.
+        barrier: barrier position (the displacement kernel is reflected there), or ``None``.
+        method: ``"dpim"`` or ``"monte_carlo"``.
+    """
+
+    times: Any
+    states: Any
+    weights: Any
+    barrier: Any
+    method: str = static_field()
+
+    @property
+    def n_paths(self) -> int:
+        return int(np.shape(self.weights)[0])
+
+    def _index(self, t) -> int:
+        return saved_index(tuple(np.asarray(self.times).tolist()), t)
+
+    def samples(self, var: str, t: float):
+        """The values of ``var`` (``"x"`` or ``"v"``) of every path at saved time ``t``; shape ``(N,)``."""
+        if var not in VARIABLES:
+            raise ValueError(f"var must be one of {VARIABLES}, got {var!r}")
+        return self.states[:, self._index(t), VARIABLES.index(var)]
+
+    def n_nonfinite(self):
+        """Number of paths with a non-finite state, per saved time; shape ``(S,)``."""
+        return jnp.sum(~jnp.all(jnp.isfinite(self.states), axis=-1), axis=0)
+
+    def lost_mass(self):
+        """Probability carried by paths with non-finite states, per saved time; shape ``(S,)``.
+
+        Densities leave this mass out (they integrate to ``1 - lost_mass``).
+        """
+        bad = ~jnp.all(jnp.isfinite(self.states), axis=-1)
+        return jnp.sum(jnp.where(bad, self.weights[:, None], 0.0), axis=0)
+
+    def bandwidth(self, var: str, t: float, rule: str = "chen", *, dim: int = 1, c: float | None = None):
+        """The rule-based kernel standard deviation for ``var`` at time ``t`` (see ``jdpim.bandwidth``)."""
+        return _density.bandwidth(self.samples(var, t), self.weights, rule, dim=dim, c=c)
+
+    def pdf(self, var: str, grid, t: float, *, bandwidth=None, rule: str = "chen"):
+        r"""Marginal PDF of ``var`` (``"x"`` or ``"v"``) at saved time ``t`` on ``grid``.
+
+        ``p(y) = sum_q P_q N(y; y_q, sigma^2)``, reflected at the barrier for ``"x"``.
+
+        Args:
+            var: ``"x"`` (displacement) or ``"v"`` (velocity).
+            grid: evaluation points, 1-D, strictly increasing.
+            t: a saved time, s.
+            bandwidth: kernel standard deviation (> 0), or ``None`` to use ``rule``.
+            rule: bandwidth rule, one of ``"chen"``, ``"silverman"``, ``"scott"``.
+
+        Returns:
+            array shaped like ``grid``.
+        """
+        check_grid("grid", grid)
+        y = self.samples(var, t)
+        sigma = self._sigma(bandwidth, lambda: _density.bandwidth(y, self.weights, rule, dim=1))
+        return _density.kde(y, self.weights, jnp.asarray(grid), sigma, self.barrier if var == "x" else None)
+
+    def joint_pdf(self, x_grid, v_grid, t: float, *, bandwidth=None, rule: str = "chen"):
+        """Joint PDF of ``(x, v)`` at saved time ``t``; shape ``(len(x_grid), len(v_grid))``.
+
+        ``bandwidth`` is ``None`` (rule-based, 2-D exponent) or a pair ``(sigma_x, sigma_v)``.
+        """
+        check_grid("x_grid", x_grid)
+        check_grid("v_grid", v_grid)
+        x, v = self.samples("x", t), self.samples("v", t)
+        if bandwidth is None:
+            sx = _density.bandwidth(x, self.weights, rule, dim=2)
+            sv = _density.bandwidth(v, self.weights, rule, dim=2)
+        else:
+            if np.ndim(bandwidth) != 1 or len(bandwidth) != 2:
+                raise ValueError(f"bandwidth must be None or a pair (sigma_x, sigma_v), got {bandwidth!r}")
+            sx, sv = (self._sigma(b, None) for b in bandwidth)
+        return _density.kde_2d(x, v, self.weights, jnp.asarray(x_grid), jnp.asarray(v_grid), sx, sv, self.barrier)
+
+    def histogram(self, var: str, edges, t: float):
+        """Weighted histogram density of ``var`` at time ``t`` on bin ``edges``; shape ``(len(edges) - 1,)``."""
+        check_grid("edges", edges)
+        return _density.histogram(self.samples(var, t), self.weights, jnp.asarray(edges))
+
+    def moment(self, var: str, order: int, t: float):
+        """Weighted raw moment ``E[var^order]`` at time ``t`` over the paths with finite states."""
+        y = self.samples(var, t)
+        ok = jnp.isfinite(y)
+        w = jnp.where(ok, self.weights, 0.0)
+        return jnp.sum(w * jnp.where(ok, y, 0.0) ** order) / jnp.sum(w)
+
+    @staticmethod
+    def _sigma(bandwidth, default):
+        if bandwidth is None:
+            return default()
+        check_real("bandwidth", bandwidth, low=0.0, low_open=True)
+        arr = concrete(bandwidth)
+        return bandwidth if arr is None else jnp.asarray(arr)

@@ -1,0 +1,169 @@
+"""A scene: model, noise, time grid, what to save, random parameters and numerical settings."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._distributions import ANGLE, Normal, Uniform
+from ._excitation import SpectralGrid, SpectralRepresentation
+from ._integrate import ImpactRule
+from ._models import AbstractOscillator, n_sources_of
+from ._noise import WhiteNoise
+from ._pytree import check_real, concrete, pytree_dataclass, static_field
+
+_GRID_TOL = 1e-6  # relative tolerance (in steps) for times that must lie on the time grid
+
+
+@pytree_dataclass
+class Scene:
+    r"""Everything that defines one stochastic-response computation.
+
+    Args:
+        model: the oscillator (physical parameters are traced leaves).
+        noise: the white-noise excitation; its number of sources must match the model's gains.
+        t_end: end time in s (> 0, a multiple of ``dt``).
+        dt: RK4 time step in s (0 < dt < t_end).
+        save_at: times in s at which the state is kept (strictly increasing, in [0, t_end], on the
+            time grid). Only these are stored. Default: ``(t_end,)``.
+        x0, v0: initial displacement and velocity (traced); ``x0=None`` starts at the barrier (or 0).
+        random: random system parameters, ``{name: Normal(...) | Uniform(...)}``, where ``name`` is a
+            model field or ``"x0"``/``"v0"``. They become extra DPIM input dimensions.
+        excitation: spectral-representation settings.
+        impacts: impact-resolution settings.
+        dtype: ``"float32"`` or ``"float64"`` (needs ``jax_enable_x64``), or ``None`` for JAX's default.
+
+    Example:
+        >>> import jdpim
+        >>> scene = jdpim.Scene(jdpim.VibroImpactOscillator(), noise=jdpim.WhiteNoise(D=0.03),
+        ...                     t_end=10.0, dt=0.01, save_at=(5.0, 10.0))
+        >>> scene.n_steps, scene.save_steps
+        (1000, (500, 1000))
+    """
+
+    model: AbstractOscillator
+    noise: WhiteNoise = dataclasses.field(default_factory=WhiteNoise)
+    x0: Any = None
+    v0: Any = 0.0
+    t_end: float = static_field(default=200.0)
+    dt: float = static_field(default=0.01)
+    save_at: tuple = static_field(default=None)
+    random: Any = static_field(default=())
+    excitation: SpectralRepresentation = static_field(default_factory=SpectralRepresentation)
+    impacts: ImpactRule = static_field(default_factory=ImpactRule)
+    dtype: str | None = static_field(default=None)
+
+    def __post_init__(self):
+        if not isinstance(self.model, AbstractOscillator):
+            raise TypeError(f"model must be an oscillator (e.g. jdpim.VibroImpactOscillator), got {self.model!r}")
+        if not isinstance(self.noise, WhiteNoise):
+            raise TypeError(f"noise must be a jdpim.WhiteNoise, got {self.noise!r}")
+        check_real("t_end", self.t_end, low=0.0, low_open=True)
+        check_real("dt", self.dt, low=0.0, low_open=True)
+        if not self.dt < self.t_end:
+            raise ValueError(f"dt must lie in (0, t_end={self.t_end!r}), got {self.dt!r}")
+        ratio = self.t_end / self.dt
+        if abs(ratio - round(ratio)) > _GRID_TOL * max(1.0, ratio):
+            raise ValueError(f"t_end={self.t_end!r} must be a whole number of steps dt={self.dt!r}")
+        object.__setattr__(self, "t_end", float(self.t_end))
+        object.__setattr__(self, "dt", float(self.dt))
+        object.__setattr__(self, "save_at", self._checked_save_at(self.save_at))
+        object.__setattr__(self, "random", self._checked_random(self.random))
+        for name, kind in (("excitation", SpectralRepresentation), ("impacts", ImpactRule)):
+            if not isinstance(getattr(self, name), kind):
+                raise TypeError(f"{name} must be a jdpim.{kind.__name__}, got {getattr(self, name)!r}")
+        if self.dtype not in (None, "float32", "float64"):
+            raise ValueError(f"dtype must be None, 'float32' or 'float64', got {self.dtype!r}")
+        if self.dtype == "float64" and not jax.config.jax_enable_x64:
+            raise ValueError("dtype='float64' needs jax.config.update('jax_enable_x64', True) before use")
+        noise_arr = concrete(self.noise.D)
+        if noise_arr is not None and n_sources_of(self.model) != self.noise.n_sources:
+            raise ValueError(
+                f"the model's gains expect {n_sources_of(self.model)} noise source(s) but noise.D "
+                f"has {self.noise.n_sources}"
+            )
+        check_real("v0", self.v0)
+        if self.x0 is not None:
+            check_real("x0", self.x0)
+            x0, b = concrete(self.x0), concrete(self.model.barrier)
+            if x0 is not None and b is not None and self.model.has_barrier and np.any(x0 < b):
+                raise ValueError(
+                    f"x0={self.x0!r} lies beyond the barrier at {self.model.barrier!r}; it must be >= barrier"
+                )
+
+    def _checked_save_at(self, save_at) -> tuple[float, ...]:
+        if save_at is None:
+            return (self.t_end,)
+        times = np.atleast_1d(np.asarray(save_at, dtype=float))
+        if times.ndim != 1 or times.size == 0:
+            raise ValueError(f"save_at must be a non-empty 1-D sequence of times, got {save_at!r}")
+        check_real("save_at", times, low=0.0, high=self.t_end)
+        if np.any(np.diff(times) <= 0):
+            raise ValueError(f"save_at must be strictly increasing, got {save_at!r}")
+        steps = times / self.dt
+        off = np.abs(steps - np.round(steps)) > _GRID_TOL * np.maximum(1.0, steps)
+        if np.any(off):
+            raise ValueError(f"save_at times {times[off].tolist()} are not multiples of dt={self.dt!r}")
+        return tuple(float(t) for t in np.round(steps) * self.dt)
+
+    def _checked_random(self, random) -> tuple[tuple[str, Uniform | Normal], ...]:
+        items = tuple(random.items()) if isinstance(random, Mapping) else tuple(random)
+        leaves = {f.name for f in dataclasses.fields(self.model) if not f.metadata.get("static", False)}
+        for item in items:
+            if not (isinstance(item, Sequence) and len(item) == 2):
+                raise TypeError(f"random must map parameter names to distributions, got {random!r}")
+            name, dist = item
+            if name not in leaves | {"x0", "v0"}:
+                raise ValueError(
+                    f"random parameter {name!r} is not a model parameter; choose from {sorted(leaves | {'x0', 'v0'})}"
+                )
+            if not isinstance(dist, (Uniform, Normal)):
+                raise TypeError(f"random[{name!r}] must be jdpim.Normal or jdpim.Uniform, got {dist!r}")
+        return tuple((str(n), d) for n, d in items)
+
+    # ---- derived, static quantities -------------------------------------------------------------
+    @property
+    def n_steps(self) -> int:
+        return int(round(self.t_end / self.dt))
+
+    @property
+    def save_steps(self) -> tuple[int, ...]:
+        return tuple(int(round(t / self.dt)) for t in self.save_at)
+
+    @property
+    def n_sources(self) -> int:
+        return self.noise.n_sources
+
+    @property
+    def float_dtype(self):
+        return jnp.zeros(()).dtype if self.dtype is None else jnp.dtype(self.dtype)
+
+    def spectral_grid(self) -> SpectralGrid:
+        return self.excitation.grid(self.t_end, self.dt)
+
+    def input_distributions(self) -> tuple:
+        """Distributions of the DPIM input space: ``(Theta1, Theta2)`` per source, then random parameters."""
+        return (ANGLE,) * (2 * self.n_sources) + tuple(d for _, d in self.random)
+
+    def replace(self, **changes) -> Scene:
+        """A copy with fields replaced (``scene.replace(model=scene.model.replace(alpha=0.05))``)."""
+        return dataclasses.replace(self, **changes)
+
+    def time_index(self, t: float) -> int:
+        """Index of the saved time ``t`` in ``save_at`` (error if ``t`` was not saved)."""
+        return saved_index(self.save_at, t)
+
+
+def saved_index(save_at: Sequence[float], t: float) -> int:
+    """Index of ``t`` among the saved times, with a clear error when it was not saved."""
+    check_real("t", t)
+    times = np.asarray(save_at)
+    i = int(np.argmin(np.abs(times - float(t))))
+    if abs(times[i] - float(t)) > 1e-9 * max(1.0, abs(float(t))):
+        raise ValueError(f"t={t!r} was not saved; saved times are {list(save_at)}")
+    return i
