@@ -1,0 +1,43 @@
+"""Shared test configuration: strict JAX checks, and scenes/results computed once per session.
+
+Compilation dominates the cost of the suite on a 2-core CPU, so expensive results are session-scoped
+fixtures reused by many tests, and sizes are small. Heavier settings carry the ``slow`` marker.
+"""
+
+import jax
+import numpy as np
+import pytest
+
+import jdpim
+
+jax.config.update("jax_numpy_rank_promotion", "raise")
+
+ALPHA, D_REF = 0.03, 0.03
+T_TRANSIENT, T_LATE = 10.0, 100.0
+
+
+@pytest.fixture(scope="session")
+def elastic_scene():
+    """r = 1, linear damping (exact folded-Gaussian solution), saved at a transient and a late time."""
+    model = jdpim.VibroImpactOscillator(alpha=ALPHA, gamma=None, r=1.0)
+    return jdpim.Scene(model, noise=jdpim.WhiteNoise(D=D_REF), t_end=T_LATE, dt=0.01, save_at=(T_TRANSIENT, T_LATE))
+
+
+@pytest.fixture(scope="session")
+def elastic_dpim(elastic_scene):
+    return jdpim.dpim(elastic_scene, n_points=1000)
+
+
+@pytest.fixture(scope="session")
+def elastic_mc(elastic_scene):
+    return jdpim.monte_carlo(elastic_scene, n_samples=4000, seed=0)
+
+
+@pytest.fixture(scope="session")
+def x_grid():
+    return np.linspace(0.0, 5.0, 401)
+
+
+@pytest.fixture(scope="session")
+def v_grid():
+    return np.linspace(-5.0, 5.0, 801)
