@@ -52,7 +52,7 @@ class SpectralRepresentation:
         >>> import jdpim
         >>> spec = jdpim.SpectralRepresentation(cutoff=4 * 3.14159)
         >>> spec.grid(t_end=100.0, dt=0.01).n_terms
-        206
+        225
     """
 
     cutoff: float = 8 * math.pi
@@ -152,7 +152,7 @@ def gaussian_coefficients(
 
 def _mix(X, Y, grid: SpectralGrid, mixing):
     Y = Y.at[..., 0].set(0.0)  # no sine term at w = 0
-    c = jnp.asarray(grid.amplitude(), X.dtype) * jax.lax.complex(X, -Y)
+    c = jnp.asarray(grid.amplitude(), X.dtype)[None, :] * jax.lax.complex(X, -Y)
     return jnp.einsum("ij,jk->ik", mixing.astype(c.dtype), c)
 
 
