@@ -31,6 +31,7 @@ import numpy as np
 from ._pytree import check_int, check_real
 
 _SQRT2 = math.sqrt(2.0)
+RANDOM_FUNCTIONS = ("cosine", "rayleigh")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -60,8 +61,11 @@ class SpectralRepresentation:
     offset: float | None = None
     permute: bool = True
     seed: int = 0
+    random_functions: str = "cosine"
 
     def __post_init__(self):
+        if self.random_functions not in RANDOM_FUNCTIONS:
+            raise ValueError(f"random_functions must be one of {RANDOM_FUNCTIONS}, got {self.random_functions!r}")
         check_real("cutoff", self.cutoff, low=0.0, low_open=True)
         if self.dw is not None:
             check_real("dw", self.dw, low=0.0, low_open=True)
@@ -86,7 +90,14 @@ class SpectralRepresentation:
                 f"of the RK4 stage grid (dt={dt:g}); lower the cutoff or dt"
             )
         return SpectralGrid(
-            n_terms=n_terms, dw=dw, n_fft=n_fft, start=start, n_half=n_half, permute=self.permute, seed=self.seed
+            n_terms=n_terms,
+            dw=dw,
+            n_fft=n_fft,
+            start=start,
+            n_half=n_half,
+            permute=self.permute,
+            seed=self.seed,
+            random_functions=self.random_functions,
         )
 
 
@@ -105,6 +116,7 @@ class SpectralGrid:
     n_half: int
     permute: bool
     seed: int
+    random_functions: str = "cosine"
 
     @property
     def cutoff(self) -> float:
@@ -137,8 +149,14 @@ def random_function_coefficients(theta: jnp.ndarray, grid: SpectralGrid, mixing:
     """
     m_k = jnp.asarray(grid.harmonics(), dtype=theta.dtype)
     th = theta.reshape(-1, 2)
-    X = _SQRT2 * jnp.cos(m_k[None, :] * th[:, :1] + math.pi / 4)
-    Y = _SQRT2 * jnp.cos(m_k[None, :] * th[:, 1:] + math.pi / 4)
+    if grid.random_functions == "cosine":
+        X = _SQRT2 * jnp.cos(m_k[None, :] * th[:, :1] + math.pi / 4)
+        Y = _SQRT2 * jnp.cos(m_k[None, :] * th[:, 1:] + math.pi / 4)
+    else:  # "rayleigh": Box-Muller pairs, amplitude from Theta1, phase from Theta2
+        u = jnp.mod(m_k[None, :] * (th[:, :1] + math.pi) / (2 * math.pi), 1.0)
+        radius = jnp.sqrt(-2.0 * jnp.log(jnp.maximum(u, jnp.finfo(theta.dtype).tiny)))
+        phase = m_k[None, :] * th[:, 1:]
+        X, Y = radius * jnp.cos(phase), radius * jnp.sin(phase)
     return _mix(X, Y, grid, mixing)
 
 
