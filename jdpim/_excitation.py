@@ -170,8 +170,12 @@ def random_function_coefficients(theta: jnp.ndarray, grid: SpectralGrid, mixing:
 def gaussian_coefficients(
     key: jax.Array, n_sources: int, grid: SpectralGrid, mixing: jnp.ndarray, dtype
 ) -> jnp.ndarray:
-    """Complex coefficients of one Monte Carlo path: ``X_k, Y_k`` independent standard normals, ``(m, K + 1)``."""
-    XY = jax.random.normal(key, (2, n_sources, grid.n_terms + 1), dtype=dtype)
+    """Complex coefficients of one Monte Carlo path: ``X_k, Y_k`` independent standard normals, ``(m, K + 1)``.
+
+    The normals are drawn in float32 and cast to ``dtype``, so a seed gives the same samples in float32
+    and float64 runs (precision comparisons are then free of sampling noise).
+    """
+    XY = jax.random.normal(key, (2, n_sources, grid.n_terms + 1), dtype=jnp.float32).astype(dtype)
     return _mix(XY[0], XY[1], grid, mixing)
 
 
