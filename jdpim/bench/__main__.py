@@ -26,7 +26,15 @@ def main(argv=None) -> int:
         cfg = QUICK if args.quick else Sweep()
         if args.t_end is not None:
             cfg = dataclasses.replace(cfg, t_end=args.t_end)
-        results = [sweep(case, cfg, log=lambda s: print(s, flush=True)) for case in args.case]
+        results = []
+        for case in args.case:
+            results.append(None)
+            results[-1] = sweep(
+                case,
+                cfg,
+                log=lambda s: print(s, flush=True),
+                on_row=lambda partial: (results.__setitem__(-1, partial), write(results, args.out)),
+            )
         files = write(results, args.out)
     else:
         from .budget import run_budget

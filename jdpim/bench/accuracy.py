@@ -133,8 +133,11 @@ def monte_carlo_reference(scene: Scene, n: int, seed: int = 10_000, n_batches: i
     return refs, float(np.mean(batch_errs) * math.sqrt(size / n))
 
 
-def sweep(case: str, cfg: Sweep, *, log=print) -> dict:
-    """Run the sweep for ``case`` (``"elastic"`` or ``"paper"``); returns rows and the reference's error."""
+def sweep(case: str, cfg: Sweep, *, log=print, on_row=None) -> dict:
+    """Run the sweep for ``case`` (``"elastic"`` or ``"paper"``); returns rows and the reference's error.
+
+    ``on_row(partial_result)`` is called after every configuration (to save partial results).
+    """
     make = elastic_scene if case == "elastic" else paper_scene
     base = make(cfg.t_end, cfg.dt)
     if case == "elastic":
@@ -170,6 +173,8 @@ def sweep(case: str, cfg: Sweep, *, log=print) -> dict:
                 "path_steps_per_s": n * base.n_steps / statistics.median(times),
             }
             rows.append(row)
+            if on_row is not None:
+                on_row({"case": case, "rows": rows, "reference_l1": ref_err, "sweep": dataclasses.asdict(cfg)})
             log(
                 f"[{case}] {method:11s} n={n:>7d}  L1={row['l1_mean']:.4f} [{row['l1_min']:.4f}, {row['l1_max']:.4f}]"
                 f"  time={row['time_s']:.3f}s  compile={row['compile_s']:.1f}s"
