@@ -28,6 +28,9 @@ from ._points import gf_discrepancy as gf_discrepancy
 from ._points import select_points as select_points
 from ._result import Result as Result
 from ._scene import Scene as Scene
+from ._sensitivity import parameter_names as parameter_names
+from ._sensitivity import sensitivity as sensitivity
+from ._sensitivity import with_parameters as with_parameters
 
 try:
     __version__ = version("jdpim")
