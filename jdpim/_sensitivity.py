@@ -117,10 +117,13 @@ def sensitivity(
 
     Example:
         >>> import jdpim, numpy as np
-        >>> scene = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=1.0, dt=0.02)
-        >>> dp = jdpim.sensitivity(scene, ("alpha", "D"), "v", np.linspace(-1, 1, 5), n_points=16)
-        >>> sorted(dp), dp["D"].shape
-        (['D', 'alpha'], (5,))
+        >>> model = jdpim.VibroImpactOscillator(alpha=0.1, gamma=0.05, r=0.9)
+        >>> scene = jdpim.Scene(model, noise=jdpim.WhiteNoise(D=0.05), t_end=2.0, dt=0.02, x0=0.3,
+        ...                     impacts=jdpim.ImpactRule(stick_velocity=0.0))
+        >>> points = jdpim.dpim_points(scene, 16)
+        >>> dp = jdpim.sensitivity(scene, ("alpha",), "v", np.linspace(-1.0, 1.0, 9), points=points)
+        >>> dp["alpha"].shape
+        (9,)
     """
     if var not in VARIABLES:
         raise ValueError(f"var must be one of {VARIABLES}, got {var!r}")
