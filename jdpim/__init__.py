@@ -28,6 +28,13 @@ from ._points import gf_discrepancy as gf_discrepancy
 from ._points import select_points as select_points
 from ._result import Result as Result
 from ._scene import Scene as Scene
+from ._sensitivity import parameter_names as parameter_names
+from ._sensitivity import sensitivity as sensitivity
+from ._sensitivity import with_parameters as with_parameters
+from ._tuning import loo_log_likelihood as loo_log_likelihood
+from ._tuning import refine_points as refine_points
+from ._tuning import soft_voronoi_probabilities as soft_voronoi_probabilities
+from ._tuning import tune_bandwidth as tune_bandwidth
 
 try:
     __version__ = version("jdpim")

@@ -104,7 +104,7 @@ def simulate(scene: Scene, rows, *, kind: str, chunk_size: int):
 def _finish(scene: Scene, states, weights, method: str) -> Result:
     barrier = scene.model.barrier if scene.model.has_barrier else None
     res = Result(
-        times=jnp.asarray(scene.save_at, scene.float_dtype),
+        times=np.asarray(scene.save_at, scene.float_dtype),  # concrete, so Result.pdf works under jit/vmap
         states=states,
         weights=weights,
         barrier=barrier,
