@@ -84,6 +84,7 @@ def _simulate_chunk(scene: Scene, kind: str, rows):
         jnp.asarray(slots),
         n_save,
         slot_of.get(0, n_save),
+        scene.substeps,
     )
 
 
