@@ -152,7 +152,7 @@ def _bracketed_newton(q, dq, lo, hi, n_iter):
     return s
 
 
-def departure(model, e, tau0, n_iter=3):
+def departure(model, e, tau0, n_iter=5):
     """First step fraction in ``[tau0, 1]`` where a path at rest on the barrier is pulled off it; 1 if never.
 
     The force at rest, ``F(tau) = a(b, 0, xi(tau))``, is affine in ``xi`` and so exactly the quadratic
@@ -169,7 +169,7 @@ def departure(model, e, tau0, n_iter=3):
         return c1 + 2.0 * tau * c2
 
     # split [tau0, 1] at the extremum m of F into two monotone pieces
-    m = jnp.where(c2 != 0, jnp.clip(-c1 / jnp.where(c2 == 0, 1.0, c2), tau0, 1.0), tau0)
+    m = jnp.where(c2 != 0, jnp.clip(-0.5 * c1 / jnp.where(c2 == 0, 1.0, c2), tau0, 1.0), tau0)
     in_first = q(m) > 0
     lo, hi = jnp.where(in_first, tau0, m), jnp.where(in_first, m, 1.0)
     root = _bracketed_newton(q, dq, lo, hi, n_iter)
