@@ -53,7 +53,7 @@ class Normal:
 
     Example:
         >>> import jdpim
-        >>> jdpim.Normal(1.0, 2.0).ppf(0.5)
+        >>> float(jdpim.Normal(1.0, 2.0).ppf(0.5))
         1.0
     """
 

@@ -31,6 +31,7 @@ import numpy as np
 from ._pytree import check_int, check_real
 
 _SQRT2 = math.sqrt(2.0)
+RANDOM_FUNCTIONS = ("cosine", "rayleigh")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -47,12 +48,19 @@ class SpectralRepresentation:
         permute: map harmonic ``k`` to a fixed random index ``m_k`` (DPIM random functions). With
             ``m_k = k`` the DPIM excitation paths are travelling spikes (DESIGN.md section 3).
         seed: seed of that permutation.
+        random_functions: DPIM coefficients. ``"rayleigh"`` (default): Box-Muller pairs
+            ``X_k + i Y_k = sqrt(-2 ln u_k) exp(i m_k Theta2)``, ``u_k = frac(m_k (Theta1 + pi) / 2 pi)``:
+            orthonormal like the cosine form, and every pair is exactly Gaussian, so a response dominated
+            by a few spectral lines (a lightly damped oscillator near stationarity) stays Gaussian.
+            ``"cosine"``: ``sqrt2 cos(m_k Theta_j + pi/4)`` (Liu, Liu & Peng 2016): arcsine-distributed
+            coefficients; measured kurtosis 2.3-2.5 and an L1 error that does not decrease with N
+            (0.11-0.15) for the free oscillator at t = 100-200 s (README).
 
     Example:
         >>> import jdpim
         >>> spec = jdpim.SpectralRepresentation(cutoff=4 * 3.14159)
         >>> spec.grid(t_end=100.0, dt=0.01).n_terms
-        206
+        225
     """
 
     cutoff: float = 8 * math.pi
@@ -60,8 +68,11 @@ class SpectralRepresentation:
     offset: float | None = None
     permute: bool = True
     seed: int = 0
+    random_functions: str = "rayleigh"
 
     def __post_init__(self):
+        if self.random_functions not in RANDOM_FUNCTIONS:
+            raise ValueError(f"random_functions must be one of {RANDOM_FUNCTIONS}, got {self.random_functions!r}")
         check_real("cutoff", self.cutoff, low=0.0, low_open=True)
         if self.dw is not None:
             check_real("dw", self.dw, low=0.0, low_open=True)
@@ -86,7 +97,14 @@ class SpectralRepresentation:
                 f"of the RK4 stage grid (dt={dt:g}); lower the cutoff or dt"
             )
         return SpectralGrid(
-            n_terms=n_terms, dw=dw, n_fft=n_fft, start=start, n_half=n_half, permute=self.permute, seed=self.seed
+            n_terms=n_terms,
+            dw=dw,
+            n_fft=n_fft,
+            start=start,
+            n_half=n_half,
+            permute=self.permute,
+            seed=self.seed,
+            random_functions=self.random_functions,
         )
 
 
@@ -105,6 +123,7 @@ class SpectralGrid:
     n_half: int
     permute: bool
     seed: int
+    random_functions: str = "rayleigh"
 
     @property
     def cutoff(self) -> float:
@@ -137,8 +156,14 @@ def random_function_coefficients(theta: jnp.ndarray, grid: SpectralGrid, mixing:
     """
     m_k = jnp.asarray(grid.harmonics(), dtype=theta.dtype)
     th = theta.reshape(-1, 2)
-    X = _SQRT2 * jnp.cos(m_k[None, :] * th[:, :1] + math.pi / 4)
-    Y = _SQRT2 * jnp.cos(m_k[None, :] * th[:, 1:] + math.pi / 4)
+    if grid.random_functions == "cosine":
+        X = _SQRT2 * jnp.cos(m_k[None, :] * th[:, :1] + math.pi / 4)
+        Y = _SQRT2 * jnp.cos(m_k[None, :] * th[:, 1:] + math.pi / 4)
+    else:  # "rayleigh": Box-Muller pairs, amplitude from Theta1, phase from Theta2
+        u = jnp.mod(m_k[None, :] * (th[:, :1] + math.pi) / (2 * math.pi), 1.0)
+        radius = jnp.sqrt(-2.0 * jnp.log(jnp.maximum(u, jnp.finfo(theta.dtype).tiny)))
+        phase = m_k[None, :] * th[:, 1:]
+        X, Y = radius * jnp.cos(phase), radius * jnp.sin(phase)
     return _mix(X, Y, grid, mixing)
 
 
@@ -152,7 +177,7 @@ def gaussian_coefficients(
 
 def _mix(X, Y, grid: SpectralGrid, mixing):
     Y = Y.at[..., 0].set(0.0)  # no sine term at w = 0
-    c = jnp.asarray(grid.amplitude(), X.dtype) * jax.lax.complex(X, -Y)
+    c = jnp.asarray(grid.amplitude(), X.dtype)[None, :] * jax.lax.complex(X, -Y)
     return jnp.einsum("ij,jk->ik", mixing.astype(c.dtype), c)
 
 

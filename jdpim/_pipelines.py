@@ -128,6 +128,33 @@ def dpim_points(scene: Scene, n_points: int = 1000) -> PointSet:
     return select_points(scene.input_distributions(), n_points)
 
 
+def _chunk(scene: Scene, n: int, chunk_size: int | None) -> int:
+    if chunk_size is None:
+        return default_chunk_size(scene, n)
+    return min(check_int("chunk_size", chunk_size, low=1), n)
+
+
+def dpim_inputs(scene: Scene, n_points: int = 1000, *, points: PointSet | None = None, chunk_size=None):
+    """``(rows, weights, chunk_size)`` of a DPIM run: the points ``(N, d)``, their probabilities ``(N,)``."""
+    if points is None:
+        points = dpim_points(scene, n_points)
+    elif not isinstance(points, PointSet):
+        raise TypeError(f"points must be a jdpim.PointSet, got {type(points).__name__}")
+    elif tuple(points.distributions) != scene.input_distributions():
+        raise ValueError(f"points.distributions do not match the scene's input space {scene.input_distributions()}")
+    dtype = scene.float_dtype
+    rows, weights = jnp.asarray(points.theta, dtype), jnp.asarray(points.weights, dtype)
+    return rows, weights, _chunk(scene, points.n_points, chunk_size)
+
+
+def monte_carlo_inputs(scene: Scene, n_samples: int = 10_000, *, seed: int = 0, chunk_size=None):
+    """``(rows, weights, chunk_size)`` of a Monte Carlo run: per-path key data ``(n, 2)``, weights ``1/n``."""
+    n = check_int("n_samples", n_samples, low=2)
+    seed = check_int("seed", seed, low=0)
+    keys = jax.random.key_data(jax.random.split(jax.random.key(seed), n))
+    return keys, jnp.full((n,), 1.0 / n, scene.float_dtype), _chunk(scene, n, chunk_size)
+
+
 def dpim(
     scene: Scene, n_points: int = 1000, *, points: PointSet | None = None, chunk_size: int | None = None
 ) -> Result:
@@ -155,17 +182,9 @@ def dpim(
 
     References: Chen & Yang (2019), CMAME 357; Chen, Yang & Li (2016), Structural Safety 59.
     """
-    if points is None:
-        points = dpim_points(scene, n_points)
-    elif not isinstance(points, PointSet):
-        raise TypeError(f"points must be a jdpim.PointSet, got {type(points).__name__}")
-    elif tuple(points.distributions) != scene.input_distributions():
-        raise ValueError(f"points.distributions do not match the scene's input space {scene.input_distributions()}")
-    n = points.n_points
-    chunk_size = default_chunk_size(scene, n) if chunk_size is None else check_int("chunk_size", chunk_size, low=1)
-    dtype = scene.float_dtype
-    states = simulate(scene, jnp.asarray(points.theta, dtype), kind="dpim", chunk_size=min(chunk_size, n))
-    return _finish(scene, states, jnp.asarray(points.weights, dtype), "dpim")
+    rows, weights, chunk_size = dpim_inputs(scene, n_points, points=points, chunk_size=chunk_size)
+    states = simulate(scene, rows, kind="dpim", chunk_size=chunk_size)
+    return _finish(scene, states, weights, "dpim")
 
 
 def monte_carlo(scene: Scene, n_samples: int = 10_000, *, seed: int = 0, chunk_size: int | None = None) -> Result:
@@ -186,10 +205,6 @@ def monte_carlo(scene: Scene, n_samples: int = 10_000, *, seed: int = 0, chunk_s
         >>> jdpim.monte_carlo(scene, n_samples=32, seed=1).states.shape
         (32, 1, 2)
     """
-    n = check_int("n_samples", n_samples, low=2)
-    seed = check_int("seed", seed, low=0)
-    chunk_size = default_chunk_size(scene, n) if chunk_size is None else check_int("chunk_size", chunk_size, low=1)
-    keys = jax.random.key_data(jax.random.split(jax.random.key(seed), n))
-    states = simulate(scene, keys, kind="monte_carlo", chunk_size=min(chunk_size, n))
-    weights = jnp.full((n,), 1.0 / n, scene.float_dtype)
+    rows, weights, chunk_size = monte_carlo_inputs(scene, n_samples, seed=seed, chunk_size=chunk_size)
+    states = simulate(scene, rows, kind="monte_carlo", chunk_size=chunk_size)
     return _finish(scene, states, weights, "monte_carlo")

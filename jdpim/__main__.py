@@ -1,0 +1,5 @@
+"""``python -m jdpim``: the command line (``run`` is the default: the main job)."""
+
+from jdpim.cli import main
+
+raise SystemExit(main())

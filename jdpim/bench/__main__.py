@@ -1,0 +1,40 @@
+"""``python -m jdpim.bench accuracy [--quick] [--case elastic paper] [--out DIR]``: accuracy versus time."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import pathlib
+import sys
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m jdpim.bench", description=__doc__)
+    sub = parser.add_subparsers(dest="command", required=True)
+    acc = sub.add_parser("accuracy", help="error against exact/reference PDFs versus warm wall time")
+    acc.add_argument("--quick", action="store_true", help="small sweep that finishes in a few minutes on 2 cores")
+    acc.add_argument("--case", nargs="+", default=["elastic", "paper"], choices=["elastic", "paper"])
+    acc.add_argument("--t-end", type=float, default=None, help="override the sweep's end time (s)")
+    acc.add_argument("--out", type=pathlib.Path, default=pathlib.Path("jdpim_out/bench"))
+    budget = sub.add_parser("budget", help="error budget: one knob at a time (N, dt, cutoff, dw, bandwidth, dtype)")
+    budget.add_argument("--out", type=pathlib.Path, default=pathlib.Path("jdpim_out/bench"))
+    budget.add_argument("--quick", action="store_true")
+    args = parser.parse_args(sys.argv[1:] if argv is None else argv)
+    if args.command == "accuracy":
+        from .accuracy import QUICK, Sweep, sweep, write
+
+        cfg = QUICK if args.quick else Sweep()
+        if args.t_end is not None:
+            cfg = dataclasses.replace(cfg, t_end=args.t_end)
+        results = [sweep(case, cfg, log=lambda s: print(s, flush=True)) for case in args.case]
+        files = write(results, args.out)
+    else:
+        from .budget import run_budget
+
+        files = run_budget(args.out, quick=args.quick, log=lambda s: print(s, flush=True))
+    print(f"wrote {', '.join(files)} to {args.out}/")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,234 @@
+"""What accuracy costs in time: error against exact or reference densities versus warm wall time.
+
+Cases:
+
+* ``elastic``: r = 1, alpha = D = 0.03, gamma absent; exact folded-Gaussian marginals (``jdpim.exact``).
+* ``paper``: alpha = gamma = 0.03, r = 0.98, D = 0.03; reference = a large Monte Carlo run, whose own
+  sampling error is estimated from independent batches (the error of a batch of n samples against the
+  full reference, scaled by sqrt(n / n_ref)).
+
+The error of a run is the L1 distance of the marginal PDFs of x and x', averaged over both variables and
+the saved times. Every run is timed with the protocol of ``jdpim.bench.timed`` (AOT compile reported
+apart, warm-up, repeats, median). DPIM replicates use different harmonic permutations (``seed`` of
+``SpectralRepresentation``); MCS replicates use different seeds.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import pathlib
+import statistics
+
+import numpy as np
+
+from .. import exact, metrics
+from .._excitation import SpectralRepresentation
+from .._models import VibroImpactOscillator
+from .._noise import WhiteNoise
+from .._scene import Scene
+from .timing import timed
+
+ALPHA, GAMMA, R, D = 0.03, 0.03, 0.98, 0.03
+
+
+@dataclasses.dataclass(frozen=True)
+class Sweep:
+    """Sizes and settings of one benchmark run."""
+
+    t_end: float = 100.0
+    dt: float = 0.01
+    dpim_points: tuple[int, ...] = (125, 250, 500, 1000, 2000, 4000, 8000, 16000)
+    mc_samples: tuple[int, ...] = (1000, 3000, 10_000, 30_000, 100_000)
+    replicates: int = 3
+    repeats: int = 3
+    reference_samples: int = 200_000
+
+
+QUICK = Sweep(
+    t_end=50.0,
+    dpim_points=(125, 250, 500, 1000, 2000, 4000),
+    mc_samples=(1000, 3000, 10_000),
+    replicates=2,
+    repeats=1,
+    reference_samples=20_000,
+)
+
+
+def elastic_scene(t_end: float, dt: float, excitation: SpectralRepresentation | None = None, **scene_kw) -> Scene:
+    """The exact-solution case (r = 1, linear damping), saved at t = 10 s and t_end."""
+    model = VibroImpactOscillator(alpha=ALPHA, gamma=None, r=1.0)
+    return Scene(
+        model,
+        noise=WhiteNoise(D=D),
+        t_end=t_end,
+        dt=dt,
+        save_at=(10.0, t_end),
+        excitation=excitation or SpectralRepresentation(),
+        **scene_kw,
+    )
+
+
+def paper_scene(t_end: float, dt: float, excitation: SpectralRepresentation | None = None, **scene_kw) -> Scene:
+    """The reference example (alpha = gamma = 0.03, r = 0.98, D = 0.03), saved at t = 10 s and t_end."""
+    model = VibroImpactOscillator(alpha=ALPHA, gamma=GAMMA, r=R)
+    return Scene(
+        model,
+        noise=WhiteNoise(D=D),
+        t_end=t_end,
+        dt=dt,
+        save_at=(10.0, t_end),
+        excitation=excitation or SpectralRepresentation(),
+        **scene_kw,
+    )
+
+
+def grids(scale: float) -> tuple[np.ndarray, np.ndarray]:
+    """Evaluation grids for x (``[0, 6 scale]``) and x' (``[-6 scale, 6 scale]``)."""
+    return np.linspace(0.0, 6.0 * scale, 481), np.linspace(-6.0 * scale, 6.0 * scale, 961)
+
+
+def exact_references(scene: Scene) -> dict:
+    """``{(var, t): (grid, pdf)}`` from the exact r = 1 solution."""
+    scale = math.sqrt(D / ALPHA)
+    xg, vg = grids(scale)
+    out = {}
+    for t in scene.save_at:
+        out[("x", t)] = (xg, exact.elastic_linear_pdf_x(xg, ALPHA, D, t))
+        out[("v", t)] = (vg, exact.elastic_linear_pdf_v(vg, ALPHA, D, t))
+    return out
+
+
+def pdf_error(result, references: dict) -> float:
+    """Mean L1 distance over the reference's (variable, time) pairs."""
+    errs = [metrics.l1(np.asarray(result.pdf(var, g, t)), ref, g) for (var, t), (g, ref) in references.items()]
+    return float(np.mean(errs))
+
+
+def monte_carlo_reference(scene: Scene, n: int, seed: int = 10_000, n_batches: int = 8) -> tuple[dict, float]:
+    """Reference densities from ``n`` MC samples and the L1 sampling error of that reference.
+
+    The error of the reference is estimated from ``n_batches`` disjoint batches: the mean L1 distance of
+    a batch to the full reference, times ``sqrt(n_batch / n)`` (the ``1/sqrt(n)`` law).
+    """
+    from .._pipelines import monte_carlo
+
+    ref_run = monte_carlo(scene, n, seed=seed)
+    scale = math.sqrt(max(float(ref_run.moment("x", 2, t)) for t in scene.save_at))
+    xg, vg = grids(scale)
+    refs = {
+        (var, t): (g, np.asarray(ref_run.pdf(var, g, t))) for t in scene.save_at for var, g in (("x", xg), ("v", vg))
+    }
+    size = n // n_batches
+    batch_errs = []
+    for b in range(n_batches):
+        part = dataclasses.replace(
+            ref_run,
+            states=ref_run.states[b * size : (b + 1) * size],
+            weights=ref_run.weights[b * size : (b + 1) * size] * (n / size),
+        )
+        batch_errs.append(pdf_error(part, refs))
+    return refs, float(np.mean(batch_errs) * math.sqrt(size / n))
+
+
+def sweep(case: str, cfg: Sweep, *, log=print) -> dict:
+    """Run the sweep for ``case`` (``"elastic"`` or ``"paper"``); returns rows and the reference's error."""
+    make = elastic_scene if case == "elastic" else paper_scene
+    base = make(cfg.t_end, cfg.dt)
+    if case == "elastic":
+        refs, ref_err = exact_references(base), 0.0
+    else:
+        log(f"[{case}] reference: {cfg.reference_samples} MC samples ...")
+        refs, ref_err = monte_carlo_reference(base, cfg.reference_samples)
+        log(f"[{case}] reference sampling error (L1) ~ {ref_err:.4f}")
+    rows = []
+    for method, sizes in (("dpim", cfg.dpim_points), ("monte_carlo", cfg.mc_samples)):
+        for n in sizes:
+            errs, times, compile_s = [], [], []
+            for rep in range(cfg.replicates):
+                if method == "dpim":
+                    scene = make(cfg.t_end, cfg.dt, SpectralRepresentation(seed=rep))
+                    res, tm = timed("dpim", scene, n, repeats=cfg.repeats)
+                else:
+                    res, tm = timed("monte_carlo", base, n, seed=rep, repeats=cfg.repeats)
+                errs.append(pdf_error(res, refs))
+                times.append(tm.median_s)
+                compile_s.append(tm.compile_s)
+            row = {
+                "case": case,
+                "method": method,
+                "n_paths": n,
+                "l1_mean": float(np.mean(errs)),
+                "l1_min": float(np.min(errs)),
+                "l1_max": float(np.max(errs)),
+                "replicates": cfg.replicates,
+                "time_s": statistics.median(times),
+                "compile_s": statistics.median(compile_s),
+                "path_steps_per_s": n * base.n_steps / statistics.median(times),
+            }
+            rows.append(row)
+            log(
+                f"[{case}] {method:11s} n={n:>7d}  L1={row['l1_mean']:.4f} [{row['l1_min']:.4f}, {row['l1_max']:.4f}]"
+                f"  time={row['time_s']:.3f}s  compile={row['compile_s']:.1f}s"
+            )
+    return {"case": case, "rows": rows, "reference_l1": ref_err, "sweep": dataclasses.asdict(cfg)}
+
+
+def write(results: list[dict], out: pathlib.Path) -> list[str]:
+    """Write ``accuracy.json``, ``accuracy.csv`` and ``accuracy.png`` (error vs time, log-log) to ``out``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "accuracy.json").write_text(json.dumps(results, indent=2))
+    keys = [
+        "case",
+        "method",
+        "n_paths",
+        "l1_mean",
+        "l1_min",
+        "l1_max",
+        "replicates",
+        "time_s",
+        "compile_s",
+        "path_steps_per_s",
+    ]
+    lines = [",".join(keys)] + [",".join(str(r[k]) for k in keys) for res in results for r in res["rows"]]
+    (out / "accuracy.csv").write_text("\n".join(lines) + "\n")
+    fig, axes = plt.subplots(1, len(results), figsize=(5.5 * len(results), 4.2), squeeze=False)
+    for ax, res in zip(axes[0], results, strict=True):
+        for method, style in (("dpim", "ro-"), ("monte_carlo", "ks-")):
+            rows = [r for r in res["rows"] if r["method"] == method]
+            t = [r["time_s"] for r in rows]
+            ax.errorbar(
+                t,
+                [r["l1_mean"] for r in rows],
+                yerr=[[r["l1_mean"] - r["l1_min"] for r in rows], [r["l1_max"] - r["l1_mean"] for r in rows]],
+                fmt=style,
+                capsize=2,
+                label="DPIM" if method == "dpim" else "MCS",
+            )
+            for r in rows:
+                ax.annotate(
+                    f"{r['n_paths']:g}",
+                    (r["time_s"], r["l1_mean"]),
+                    fontsize=6,
+                    xytext=(3, 3),
+                    textcoords="offset points",
+                )
+        if res["reference_l1"]:
+            ax.axhline(res["reference_l1"], color="0.6", ls=":", label="reference sampling error")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("warm wall time, median (s)")
+        ax.set_ylabel("L1 error of marginal PDFs (mean over x, x', times)")
+        ax.set_title(f"{res['case']}: t_end = {res['sweep']['t_end']:g} s, dt = {res['sweep']['dt']:g} s")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out / "accuracy.png", dpi=120)
+    plt.close(fig)
+    return ["accuracy.json", "accuracy.csv", "accuracy.png"]

@@ -1,0 +1,87 @@
+"""Spectral white noise: FFT synthesis, variance normalisation, orthonormal random functions."""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jdpim
+from jdpim import _excitation as ex
+
+
+@pytest.fixture(scope="module")
+def grid():
+    return jdpim.SpectralRepresentation(cutoff=4 * math.pi).grid(t_end=20.0, dt=0.02)
+
+
+def direct_sum(coeffs, grid, times):
+    """xi(t) = Re sum_k c_k exp(i w_k t), k = 0..K, evaluated term by term (the oracle)."""
+    w = np.arange(grid.n_terms + 1) * grid.dw
+    return np.real(np.exp(1j * np.outer(times, w)) @ coeffs)
+
+
+def test_fft_synthesis_equals_direct_sum(grid):
+    key = jax.random.key(3)
+    c = np.asarray(ex.gaussian_coefficients(key, 1, grid, jnp.eye(1), jnp.float32))[0]
+    xi = np.asarray(ex.synthesize(jnp.asarray(c)[None, None], grid))[:, 0, 0]
+    half = 0.01
+    times = (grid.start + np.arange(grid.n_half)) * half
+    np.testing.assert_allclose(xi, direct_sum(c, grid, times), atol=2e-4 * np.abs(xi).max())
+
+
+def test_gaussian_variance_normalisation(grid):
+    """E[xi^2] = 2 S0 (w_u + dw / 2) with S0 = D / pi; 4000 paths give a 2.2 % standard error."""
+    D, n = 0.3, 4000
+    keys = jax.random.split(jax.random.key(0), n)
+    L = jdpim.WhiteNoise(D=D).mixing()
+    c = jax.vmap(lambda k: ex.gaussian_coefficients(k, 1, grid, L, jnp.float32))(keys)
+    xi = np.asarray(ex.synthesize(c, grid))[:, :, 0]
+    expected = 2 * D / math.pi * (grid.cutoff + grid.dw / 2)
+    var_per_time = (xi**2).mean(axis=1)
+    assert abs(var_per_time.mean() / expected - 1) < 0.03  # pooled over times: stationarity
+    assert abs(var_per_time[len(var_per_time) // 2] / expected - 1) < 4 * math.sqrt(2 / n)
+
+
+def test_random_functions_are_orthonormal(grid):
+    """Theta1, Theta2 each on a fine uniform grid (paired by a random permutation): E[X_k X_l] = E[Y_k Y_l]
+    = delta_kl exactly (the grid integrates harmonics below its size exactly); E[X_k Y_l] = 0 up to the
+    pairing noise 1/sqrt(n)."""
+    n = 64 * (grid.n_terms + 2)
+    th = np.linspace(-math.pi, math.pi, n, endpoint=False)
+    theta = jnp.asarray(np.stack([th, np.random.default_rng(0).permutation(th)], 1))
+    c = jax.vmap(lambda t: ex.random_function_coefficients(t, grid, jnp.eye(1)))(theta)[:, 0]
+    a = jnp.asarray(grid.amplitude())
+    X = np.asarray(jnp.real(c) / a[None, :])
+    Y = np.asarray(-jnp.imag(c)[:, 1:] / a[None, 1:])
+    np.testing.assert_allclose(X.T @ X / n, np.eye(X.shape[1]), atol=1e-4)
+    np.testing.assert_allclose(Y.T @ Y / n, np.eye(Y.shape[1]), atol=1e-4)
+    assert np.abs(X.T @ Y / n).max() < 5 / math.sqrt(n)
+
+
+def test_dpim_excitation_variance_over_points():
+    """The P-weighted variance of the DPIM excitation over 1000 points matches 2 S0 (w_u + dw/2)."""
+    scene = jdpim.Scene(jdpim.VibroImpactOscillator(), noise=jdpim.WhiteNoise(D=0.03), t_end=20.0, dt=0.02)
+    g = scene.spectral_grid()
+    pts = jdpim.dpim_points(scene, 1000)
+    c = jax.vmap(lambda t: ex.random_function_coefficients(t, g, scene.noise.mixing()))(jnp.asarray(pts.theta))
+    xi = np.asarray(ex.synthesize(c, g))[:, :, 0]
+    var = (np.asarray(pts.weights)[None, :] * xi**2).sum(axis=1)
+    expected = 2 * 0.03 / math.pi * (g.cutoff + g.dw / 2)
+    assert abs(var.mean() / expected - 1) < 0.02
+
+
+def test_spectral_grid_covers_window_and_rejects_aliasing():
+    g = jdpim.SpectralRepresentation().grid(t_end=200.0, dt=0.01)
+    period = 2 * math.pi / g.dw
+    assert period >= 200.0 + 2 * g.start * 0.005 - 1e-9
+    assert g.cutoff == pytest.approx(8 * math.pi, rel=0.01)
+    with pytest.raises(ValueError, match="Nyquist"):
+        jdpim.SpectralRepresentation(cutoff=700.0).grid(t_end=10.0, dt=0.01)  # Nyquist: pi / 0.005 = 628
+
+
+def test_correlated_sources_mixing():
+    D = np.array([[0.05, 0.02], [0.02, 0.04]])
+    L = np.asarray(jdpim.WhiteNoise(D=D).mixing())
+    np.testing.assert_allclose(L @ L.T, D, rtol=1e-6)
