@@ -79,6 +79,7 @@ class Scene:
         for name, kind in (("excitation", SpectralRepresentation), ("impacts", ImpactRule), ("substeps", Substeps)):
             if not isinstance(getattr(self, name), kind):
                 raise TypeError(f"{name} must be a jdpim.{kind.__name__}, got {getattr(self, name)!r}")
+        self.spectral_grid()  # the cutoff must lie below the Nyquist frequency of the stage grid
         if self.dtype not in (None, "float32", "float64"):
             raise ValueError(f"dtype must be None, 'float32' or 'float64', got {self.dtype!r}")
         if self.dtype == "float64" and not jax.config.jax_enable_x64:
