@@ -48,7 +48,7 @@ def _path_inputs(scene: Scene, kind: str, row):
     key = jax.random.wrap_key_data(row)
     k_noise, k_par = jax.random.split(key)
     coeffs = gaussian_coefficients(k_noise, m, grid, mixing, scene.float_dtype)
-    u = jax.random.uniform(k_par, (n_rand,), scene.float_dtype, minval=1e-7, maxval=1.0 - 1e-7)
+    u = jax.random.uniform(k_par, (n_rand,), jnp.float32, minval=1e-7, maxval=1.0 - 1e-7).astype(scene.float_dtype)
     rand = jnp.stack([elementary_ppf(d, u[j]) for j, (_, d) in enumerate(scene.random)]) if n_rand else u
     return coeffs, rand
 

@@ -1,11 +1,13 @@
 """Spectral white noise: FFT synthesis, variance normalisation, orthonormal random functions."""
 
+import dataclasses
 import math
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from scipy import stats
 
 import jdpim
 from jdpim import _excitation as ex
@@ -44,20 +46,38 @@ def test_gaussian_variance_normalisation(grid):
     assert abs(var_per_time[len(var_per_time) // 2] / expected - 1) < 4 * math.sqrt(2 / n)
 
 
-def test_random_functions_are_orthonormal(grid):
+def _coefficients(theta, grid, kind):
+    g = dataclasses.replace(grid, random_functions=kind)
+    c = jax.vmap(lambda t: ex.random_function_coefficients(t, g, jnp.eye(1)))(jnp.asarray(theta))[:, 0]
+    a = jnp.asarray(g.amplitude())
+    return np.asarray(jnp.real(c) / a[None, :]), np.asarray(-jnp.imag(c)[:, 1:] / a[None, 1:])
+
+
+def test_cosine_random_functions_are_orthonormal(grid):
     """Theta1, Theta2 each on a fine uniform grid (paired by a random permutation): E[X_k X_l] = E[Y_k Y_l]
     = delta_kl exactly (the grid integrates harmonics below its size exactly); E[X_k Y_l] = 0 up to the
     pairing noise 1/sqrt(n)."""
     n = 64 * (grid.n_terms + 2)
     th = np.linspace(-math.pi, math.pi, n, endpoint=False)
-    theta = jnp.asarray(np.stack([th, np.random.default_rng(0).permutation(th)], 1))
-    c = jax.vmap(lambda t: ex.random_function_coefficients(t, grid, jnp.eye(1)))(theta)[:, 0]
-    a = jnp.asarray(grid.amplitude())
-    X = np.asarray(jnp.real(c) / a[None, :])
-    Y = np.asarray(-jnp.imag(c)[:, 1:] / a[None, 1:])
+    X, Y = _coefficients(np.stack([th, np.random.default_rng(0).permutation(th)], 1), grid, "cosine")
     np.testing.assert_allclose(X.T @ X / n, np.eye(X.shape[1]), atol=1e-4)
     np.testing.assert_allclose(Y.T @ Y / n, np.eye(Y.shape[1]), atol=1e-4)
     assert np.abs(X.T @ Y / n).max() < 5 / math.sqrt(n)
+
+
+def test_rayleigh_random_functions_are_orthonormal_and_gaussian(grid):
+    """Independent uniform (Theta1, Theta2), n = 1e5: E[X_k X_l], E[Y_k Y_l] = delta_kl and E[X_k Y_l] = 0
+    within 5 standard errors (1/sqrt(n) for unit-variance products), and X_k, Y_k standard normal (KS)."""
+    n = 100_000
+    theta = np.random.default_rng(1).uniform(-math.pi, math.pi, size=(n, 2))
+    X, Y = _coefficients(theta, grid, "rayleigh")
+    tol = 5 / math.sqrt(n) * math.sqrt(2)  # diagonal entries have variance 2
+    np.testing.assert_allclose(X.T @ X / n, np.eye(X.shape[1]), atol=tol)
+    np.testing.assert_allclose(Y.T @ Y / n, np.eye(Y.shape[1]), atol=tol)
+    assert np.abs(X.T @ Y / n).max() < tol
+    for k in (0, 1, grid.n_terms // 2):
+        assert stats.kstest(X[:, k], "norm").pvalue > 1e-3
+        assert stats.kstest(Y[:, k], "norm").pvalue > 1e-3
 
 
 def test_dpim_excitation_variance_over_points():
@@ -76,7 +96,7 @@ def test_spectral_grid_covers_window_and_rejects_aliasing():
     g = jdpim.SpectralRepresentation().grid(t_end=200.0, dt=0.01)
     period = 2 * math.pi / g.dw
     assert period >= 200.0 + 2 * g.start * 0.005 - 1e-9
-    assert g.cutoff == pytest.approx(8 * math.pi, rel=0.01)
+    assert g.cutoff == pytest.approx(2.0 / 0.01, rel=0.01)  # default: cutoff * dt = 2
     with pytest.raises(ValueError, match="Nyquist"):
         jdpim.SpectralRepresentation(cutoff=700.0).grid(t_end=10.0, dt=0.01)  # Nyquist: pi / 0.005 = 628
 

@@ -8,10 +8,10 @@ import jdpim
 import jdpim.exact as exact
 from jdpim import metrics
 
-# Measured L1 errors (r = 1, alpha = D = 0.03, dt = 0.01, w_u = 8 pi, t = 10 and 100):
-# DPIM N = 1000: 0.030-0.057; Monte Carlo N = 4000: 0.016-0.031 (seeds 0, 1).
-# The bounds leave a 1.4x margin. Part of the error is the band-limiting bias of impacts (README).
-DPIM_L1, MC_L1 = 0.08, 0.045
+# Measured L1 errors (r = 1, alpha = D = 0.03, dt = 0.01, default cutoff 2 / dt, t = 10 and 100):
+# DPIM N = 1000: 0.029-0.070; Monte Carlo N = 4000: 0.023-0.050 (seeds 0, 1). The bounds leave a 1.3x
+# margin. With 2e4 MC samples the error falls to 0.008-0.019: these sizes are sampling-limited.
+DPIM_L1, MC_L1 = 0.09, 0.065
 
 
 @pytest.mark.parametrize("t", [T_TRANSIENT, T_LATE])
@@ -26,10 +26,15 @@ def test_marginals_match_exact_solution(method, t, request, x_grid, v_grid):
 
 @pytest.mark.parametrize("method", ["elastic_dpim", "elastic_mc"])
 def test_second_moment_near_exact(method, request):
-    """E[x^2] at t = 100 within 7 % of the white-noise value (band-limiting bias ~3-4 %, plus sampling)."""
+    """E[x^2] at t = 100 against the white-noise value, within 3 sampling standard errors plus 1 % bias.
+
+    A second moment from N independent samples has relative standard error sqrt(2 / N); DPIM points
+    behave like samples here (README, accuracy study), so the same bound applies to both methods.
+    Measured ratios: DPIM 0.905 (N = 1000), 0.977 (2000), 0.972 (4000); MC (N = 4000) 0.96-1.0.
+    """
     res = request.getfixturevalue(method)
     sx2 = exact.linear_covariance(ALPHA, D_REF, T_LATE)[0]
-    assert float(res.moment("x", 2, T_LATE)) == pytest.approx(sx2, rel=0.07)
+    assert float(res.moment("x", 2, T_LATE)) == pytest.approx(sx2, rel=0.01 + 3 * np.sqrt(2 / res.n_paths))
 
 
 @pytest.mark.parametrize("method", ["elastic_dpim", "elastic_mc"])
@@ -50,7 +55,7 @@ def test_joint_pdf_matches_exact(elastic_dpim):
     xg, vg = np.linspace(0, 5, 101), np.linspace(-5, 5, 201)
     p = np.asarray(elastic_dpim.joint_pdf(xg, vg, T_LATE))
     ref = exact.elastic_linear_joint_pdf(xg, vg, ALPHA, D_REF, T_LATE)
-    assert metrics.l1(p, ref, (xg, vg)) < 0.13  # measured 0.099 (0.086 at t = 10)
+    assert metrics.l1(p, ref, (xg, vg)) < 0.14  # measured 0.105 (0.118 at t = 10)
 
 
 def test_monte_carlo_is_deterministic_and_chunk_independent(elastic_scene):

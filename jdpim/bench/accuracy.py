@@ -37,13 +37,14 @@ ALPHA, GAMMA, R, D = 0.03, 0.03, 0.98, 0.03
 class Sweep:
     """Sizes and settings of one benchmark run."""
 
-    t_end: float = 100.0
+    t_end: float = 50.0
     dt: float = 0.01
     dpim_points: tuple[int, ...] = (125, 250, 500, 1000, 2000, 4000, 8000, 16000)
     mc_samples: tuple[int, ...] = (1000, 3000, 10_000, 30_000, 100_000)
-    replicates: int = 3
+    replicates: int = 2
     repeats: int = 3
     reference_samples: int = 200_000
+    big_run: float = 1e8  # path-steps above which a configuration is timed once after its warm-up
 
 
 QUICK = Sweep(
@@ -146,12 +147,13 @@ def sweep(case: str, cfg: Sweep, *, log=print) -> dict:
     for method, sizes in (("dpim", cfg.dpim_points), ("monte_carlo", cfg.mc_samples)):
         for n in sizes:
             errs, times, compile_s = [], [], []
+            repeats = cfg.repeats if n * base.n_steps <= cfg.big_run else 1
             for rep in range(cfg.replicates):
                 if method == "dpim":
                     scene = make(cfg.t_end, cfg.dt, SpectralRepresentation(seed=rep))
-                    res, tm = timed("dpim", scene, n, repeats=cfg.repeats)
+                    res, tm = timed("dpim", scene, n, repeats=repeats)
                 else:
-                    res, tm = timed("monte_carlo", base, n, seed=rep, repeats=cfg.repeats)
+                    res, tm = timed("monte_carlo", base, n, seed=rep, repeats=repeats)
                 errs.append(pdf_error(res, refs))
                 times.append(tm.median_s)
                 compile_s.append(tm.compile_s)
