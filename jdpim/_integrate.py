@@ -77,7 +77,8 @@ class Substeps:
 
     Args:
         max_substeps: largest number of sub-steps per step (>= 1); 1 disables sub-stepping. It is
-            traced only for models that can be stiff (``model.may_be_stiff``).
+            traced only for models that can be stiff (``model.may_be_stiff``), and only when the scene
+            asks for it (``Scene(..., substeps=Substeps())``; the default ``None`` costs nothing).
         limit: target ``h rho`` per sub-step, in (0, 2.785).
     """
 

@@ -84,12 +84,12 @@ STIFF = dict(r=0.8, D=1.0, gamma=10.0)  # started at v0 = 4: h * 3 gamma v^2 = 2
 
 
 def test_substeps_remove_the_blow_up(matrix):
-    res = jdpim.dpim(matrix_scene(**STIFF, v0=4.0, x0=0.5), n_points=N_POINTS)  # same compiled run as the matrix
+    res = jdpim.dpim(matrix_scene(**STIFF, v0=4.0, x0=0.5, substeps=jdpim.Substeps()), n_points=N_POINTS)
     assert np.all(np.isfinite(np.asarray(res.states)))
 
 
 def test_blow_up_is_counted_and_warned():
-    scene = matrix_scene(**STIFF, v0=4.0, x0=0.5, substeps=jdpim.Substeps(max_substeps=1))
+    scene = matrix_scene(**STIFF, v0=4.0, x0=0.5)  # no sub-stepping (the default): same compiled run as the matrix
     with pytest.warns(jdpim.NonFiniteWarning, match="non-finite"):
         res = jdpim.dpim(scene, n_points=N_POINTS)
     counts, lost = np.asarray(res.n_nonfinite()), np.asarray(res.lost_mass())
@@ -109,22 +109,24 @@ def matrix_x64():
 
 
 def test_float32_agrees_with_float64(matrix, matrix_x64):
-    """Same points and excitation in both precisions: typical paths agree to 1e-5, moments to 1e-2.
+    """Same points and excitation in both precisions: typical paths agree closely; one-path divergences do not.
 
-    Measured (t = 1, 10, 20): pathwise medians 9e-7..3e-5, 90 % quantiles <= 7.2e-4; relative differences of
-    E[x^2], E[v^2] <= 4.6e-3. Differences grow with the number of impacts: float32 roundoff moves a near-grazing
-    impact or a sticking decision, and then that one path differs by O(1) (max 0.40 at r = 0.98, t = 20), which
-    with 64 points moves a second moment by ~0.5 %.
+    Measured with the default cutoff ``2 / dt`` (40 rad/s here): at t = 1 pathwise medians 1.7e-6..8.6e-6,
+    90 % quantiles <= 2.0e-4; over t = 1, 10, 20 medians <= 1.3e-4; relative differences of E[x^2], E[v^2]
+    at t = 20 <= 1.9e-2. Differences grow with the number of impacts: float32 roundoff moves a near-grazing
+    impact or a sticking decision, and that one path then differs by O(1) (max 0.72 at r = 0.98, t = 20),
+    which with 64 points moves a second moment by ~1 %. (With the cutoff 8 pi the same numbers were 9e-7..3e-5,
+    7.2e-4 and 4.6e-3: a wider band means more, sharper impacts.)
     """
     for case, res64 in matrix_x64.items():
         res32 = matrix[case]
         a, b = np.asarray(res32.states, np.float64), np.asarray(res64.states)
         w = np.asarray(res64.weights)
         for j in range(2):
-            assert abs(w @ a[:, -1, j] ** 2 / (w @ b[:, -1, j] ** 2) - 1) < 1e-2, (case, j)
-        dev = np.max(np.abs(a - b), axis=-1)
-        assert np.all(np.median(dev, axis=0) < 1e-4), case
-        assert np.all(np.quantile(dev, 0.9, axis=0) < 2e-3), case
+            assert abs(w @ a[:, -1, j] ** 2 / (w @ b[:, -1, j] ** 2) - 1) < 3e-2, (case, j)
+        dev = np.max(np.abs(a - b), axis=-1)  # (N, S)
+        assert np.median(dev[:, 0]) < 2e-5 and np.quantile(dev[:, 0], 0.9) < 5e-4, case
+        assert np.all(np.median(dev, axis=0) < 5e-4), case
 
 
 # ---- weak convergence in dt: one compiled integrator, traced step, padded scan --------------------------------
