@@ -14,6 +14,7 @@ from ._distributions import Normal as Normal
 from ._distributions import Uniform as Uniform
 from ._excitation import SpectralRepresentation as SpectralRepresentation
 from ._integrate import ImpactRule as ImpactRule
+from ._integrate import Substeps as Substeps
 from ._models import AbstractOscillator as AbstractOscillator
 from ._models import Oscillator as Oscillator
 from ._models import VibroImpactOscillator as VibroImpactOscillator

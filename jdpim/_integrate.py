@@ -10,10 +10,14 @@ step ends beyond the barrier (``x_{n+1} < b``) the impact is located and resolve
 2. redo the step as ``RK4(s h)`` -> reset ``v <- -r v``, ``x <- b`` -> ``RK4((1 - s) h)``;
 3. repeat for up to ``max_impacts`` impacts in one step, then fall back to a mirror
    ``(x, v) <- (2b - x, -r v)``, so that no stored state lies beyond the barrier;
-4. sticking (``r < 1`` only): when the outgoing speed ``r |v_-|`` is below ``stick_velocity`` and the
-   force at ``(b, 0)`` pushes into the barrier, the path rests at ``(b, 0)`` for the rest of the step.
-   With ``r = 1`` impacts never accumulate (the motion is the fold ``x = |s|`` of a free path), so a
-   path at rest on the barrier with an inward force moves off it, as the exact solution does.
+4. sticking: when the outgoing speed ``r |v_-|`` is below ``stick_velocity`` and the force at
+   ``(b, 0)`` pushes into the barrier, the path rests at ``(b, 0)`` until the force (a quadratic in
+   the step fraction) turns outward; that departure time is located inside the step, and a path that
+   starts a step at rest with an inward force waits for it too. This holds for every ``r`` (with
+   ``r = 1`` a path pressed against the barrier at rest makes bounces of zero height: it rests too).
+5. stiffness: where the local rate ``rho = |da/dv| + sqrt(|da/dx|)`` at the start of a step exceeds
+   ``limit / h`` on some path, the whole batch takes the step as ``k`` equal sub-steps
+   (``k = min(max_substeps, ceil(h rho / limit))``, the batch maximum; see :class:`Substeps`).
 
 Steps without any crossing in the batch skip the impact work (``lax.cond`` at batch level). The
 ``"mirror"`` method is the first-order "flip after the step" rule, kept for comparison.
@@ -55,6 +59,35 @@ class ImpactRule:
         check_int("max_impacts", self.max_impacts, low=1)
         check_int("newton_iterations", self.newton_iterations, low=1)
         check_real("stick_velocity", self.stick_velocity, low=0.0)
+
+
+@dataclasses.dataclass(frozen=True)
+class Substeps:
+    r"""Sub-stepping of stiff steps (static settings).
+
+    RK4 is stable on the real axis for ``h |lambda| < 2.785``; cubic damping ``gamma v^3`` has the rate
+    ``|da/dv| = alpha + 3 gamma v^2``, which large velocities push past that. A step whose local rate
+    ``rho = |da/dv| + sqrt(|da/dx|)`` at the start of the step exceeds ``limit / h`` on some path is
+    taken as ``k = min(max_substeps, ceil(h rho / limit))`` equal sub-steps by the whole batch (the
+    forcing quadratic is resampled on each sub-interval). One traced step runs inside a
+    ``fori_loop`` of ``max_substeps`` iterations whose iterations past ``k`` are skipped by
+    ``lax.cond``, so reverse-mode AD works and a step without a stiff path costs one rate evaluation
+    per path. Paths still unstable at ``max_substeps`` blow up and are counted
+    (``Result.n_nonfinite``), never hidden.
+
+    Args:
+        max_substeps: largest number of sub-steps per step (>= 1); 1 disables sub-stepping. It is
+            traced only for models that can be stiff (``model.may_be_stiff``), and only when the scene
+            asks for it (``Scene(..., substeps=Substeps())``; the default ``None`` costs nothing).
+        limit: target ``h rho`` per sub-step, in (0, 2.785).
+    """
+
+    max_substeps: int = 16
+    limit: float = 2.0
+
+    def __post_init__(self):
+        check_int("max_substeps", self.max_substeps, low=1)
+        check_real("limit", self.limit, low=0.0, high=2.785, low_open=True, high_open=True)
 
 
 def _forcing(e, tau):
@@ -99,7 +132,7 @@ def locate_crossing(x0, v0, x1, v1, H, n_iter):
     s = jnp.clip(a0 / (a0 - a1), 0.0, 1.0)
     for _ in range(n_iter):
         ps = p(s)
-        pos = ps > 0
+        pos = ps >= 0  # p(0) = 0 (a step that starts on the barrier) keeps the bracket open
         lo, hi = jnp.where(pos, s, lo), jnp.where(pos, hi, s)
         d = dp(s)
         sn = s - ps / jnp.where(d == 0, 1.0, d)
@@ -107,6 +140,41 @@ def locate_crossing(x0, v0, x1, v1, H, n_iter):
     d = dp(s)
     s = s - p(s) / jnp.where(d == 0, 1.0, d)  # plain Newton step: derivative by the implicit function theorem
     return jnp.clip(s, 0.0, 1.0)
+
+
+def _bracketed_newton(q, dq, lo, hi, n_iter):
+    """Root of ``q`` in ``[lo, hi]`` where ``q(lo) <= 0 < q(hi)`` and ``q`` is monotone: regula falsi, then Newton."""
+    qlo, qhi = q(lo), q(hi)
+    s = lo + (hi - lo) * jnp.clip(-qlo / jnp.where(qhi > qlo, qhi - qlo, 1.0), 0.0, 1.0)
+    for _ in range(n_iter):
+        d = dq(s)
+        sn = s - q(s) / jnp.where(d == 0, 1.0, d)
+        s = jnp.clip(sn, lo, hi)
+    return s
+
+
+def departure(model, e, tau0, n_iter=5):
+    """First step fraction in ``[tau0, 1]`` where a path at rest on the barrier is pulled off it; 1 if never.
+
+    The force at rest, ``F(tau) = a(b, 0, xi(tau))``, is affine in ``xi`` and so exactly the quadratic
+    through its values at ``tau = 0, 1/2, 1``; the path leaves at the first ``tau`` with ``F(tau) > 0``.
+    """
+    b = jnp.asarray(model.barrier, e.dtype)
+    f = jnp.stack([model.acceleration(b, jnp.zeros_like(b), e[i]) for i in range(3)])
+    c0, c1, c2 = f[0], -3.0 * f[0] + 4.0 * f[1] - f[2], 2.0 * f[0] - 4.0 * f[1] + 2.0 * f[2]
+
+    def q(tau):
+        return c0 + tau * (c1 + tau * c2)
+
+    def dq(tau):
+        return c1 + 2.0 * tau * c2
+
+    # split [tau0, 1] at the extremum m of F into two monotone pieces
+    m = jnp.where(c2 != 0, jnp.clip(-0.5 * c1 / jnp.where(c2 == 0, 1.0, c2), tau0, 1.0), tau0)
+    in_first = q(m) > 0
+    lo, hi = jnp.where(in_first, tau0, m), jnp.where(in_first, m, 1.0)
+    root = _bracketed_newton(q, dq, lo, hi, n_iter)
+    return jnp.where(q(tau0) > 0, tau0, jnp.where(in_first | (q(1.0) > 0), root, 1.0))
 
 
 def _resolve_one(model, rule: ImpactRule, h, y0, tau0, y1, e):
@@ -125,9 +193,11 @@ def _resolve_one(model, rule: ImpactRule, h, y0, tau0, y1, e):
     xr, vr = rk4(model, jnp.asarray(b, x0.dtype), v_plus, e, h, theta, 1.0)
     if rule.stick_velocity > 0:
         pushes_in = model.acceleration(b, jnp.zeros_like(v0), _forcing(e, theta)) <= 0
-        stick = (v_plus < rule.stick_velocity) & pushes_in & (model.r < 1)  # r = 1 never chatters to rest
-        xr, vr = jnp.where(stick, b, xr), jnp.where(stick, 0.0, vr)
-        v_plus = jnp.where(stick, 0.0, v_plus)
+        stick = (v_plus < rule.stick_velocity) & pushes_in
+        tau_d = departure(model, e, theta)  # rest at (b, 0) until the force pulls away
+        xd, vd = rk4(model, jnp.asarray(b, x0.dtype), jnp.zeros_like(v0), e, h, tau_d, 1.0)
+        xr, vr = jnp.where(stick, xd, xr), jnp.where(stick, vd, vr)
+        v_plus, theta = jnp.where(stick, 0.0, v_plus), jnp.where(stick, tau_d, theta)
     new_y0 = (jnp.where(hit, b, x0), jnp.where(hit, v_plus, v0))
     new_y1 = (jnp.where(hit, xr, x1), jnp.where(hit, vr, v1))
     return new_y0, jnp.where(hit, theta, tau0), new_y1
@@ -139,36 +209,52 @@ def _mirror(model, x, v):
     return jnp.where(beyond, 2 * b - x, x), jnp.where(beyond, -model.r * v, v)
 
 
-def make_batch_step(path_model, rule: ImpactRule, h):
+def stiffness_rate(model, x, v, xi):
+    """``rho = |da/dv| + sqrt(|da/dx|)`` of one path (1/s): a bound on the local Jacobian's spectral radius."""
+    a_x = jax.jvp(lambda x: model.acceleration(x, v, xi), (x,), (jnp.ones_like(x),))[1]
+    a_v = jax.jvp(lambda v: model.acceleration(x, v, xi), (v,), (jnp.ones_like(v),))[1]
+    return jnp.abs(a_v) + jnp.sqrt(jnp.abs(a_x))
+
+
+def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None = None):
     """The step for a batch of paths: ``(x, v, e, rand) -> (x, v)``, each ``(n,)``; ``e`` is ``(n, 3, m)``.
 
     ``path_model(rand)`` builds one path's model from its random-parameter vector. Impacts are resolved
     on the crossing paths only: up to ``n / 16`` of them are gathered, resolved and scattered back;
-    a step with more crossings resolves the whole batch.
+    a step with more crossings resolves the whole batch. With ``substeps`` (and a model that may be
+    stiff) a step whose batch needs it is redone as sub-steps (see :class:`Substeps`).
     """
+    shared = path_model(None)
+    sticking = shared.has_barrier and rule.method == "locate" and rule.stick_velocity > 0
 
-    def free(x, v, e, rand):
-        return rk4(path_model(rand), x, v, e, h)
+    def free(x, v, e, rand, tau0, h):
+        return rk4(path_model(rand), x, v, e, h, tau0, 1.0)
 
-    def resolve(y0, tau0, y1, e, rand):
+    def resolve(y0, tau0, y1, e, rand, h):
         return _resolve_one(path_model(rand), rule, h, y0, tau0, y1, e)
 
     def mirror(x, v, rand):
         return _mirror(path_model(rand), x, v)
 
-    def resolve_crossing(state, e, rand, barrier):
+    def start_fraction(x, v, e, rand):
+        """0, or for a path at rest on the barrier the fraction at which the force pulls it off."""
+        model = path_model(rand)
+        return jnp.where((x == model.barrier) & (v == 0), departure(model, e, 0.0), 0.0)
+
+    def resolve_crossing(state, e, rand, barrier, h):
         n = barrier.shape[0]
         cap = max(1, -(-n // 16))
         hit = state[2][0] < barrier
+        resolve_h = functools.partial(resolve, h=h)
 
         def all_paths(state):
-            return jax.vmap(resolve)(*state, e, rand)
+            return jax.vmap(resolve_h)(*state, e, rand)
 
         def compacted(state):
             idx = jnp.nonzero(hit, size=cap, fill_value=n)[0]
             take = functools.partial(jax.tree_util.tree_map, lambda a: a.at[idx].get(mode="clip"))
             sub_state, sub_e, sub_rand = take((state, e, rand))
-            out = jax.vmap(resolve)(*sub_state, sub_e, sub_rand)
+            out = jax.vmap(resolve_h)(*sub_state, sub_e, sub_rand)
             return jax.tree_util.tree_map(lambda a, b: a.at[idx].set(b, mode="drop"), state, out)
 
         if cap >= n:
@@ -178,22 +264,60 @@ def make_batch_step(path_model, rule: ImpactRule, h):
             count == 0, lambda s: s, lambda s: jax.lax.cond(count <= cap, compacted, all_paths, s), state
         )
 
-    def step(x, v, e, rand):
-        x1, v1 = jax.vmap(free)(x, v, e, rand)
-        if not path_model(None).has_barrier:
+    def plain_step(x, v, e, rand, h):
+        tau0 = jnp.zeros_like(x)
+        if sticking:
+            barrier = jax.vmap(lambda r: jnp.asarray(path_model(r).barrier, x.dtype))(rand)
+            resting = (x == barrier) & (v == 0)
+            tau0 = jax.lax.cond(jnp.any(resting), lambda: jax.vmap(start_fraction)(x, v, e, rand), lambda: tau0)
+        x1, v1 = jax.vmap(functools.partial(free, h=h))(x, v, e, rand, tau0)
+        if not shared.has_barrier:
             return x1, v1
         barrier = jax.vmap(lambda r: jnp.asarray(path_model(r).barrier, x.dtype))(rand)
         if rule.method == "locate":
-            state = ((x, v), jnp.zeros_like(x), (x1, v1))
+            state = ((x, v), tau0, (x1, v1))
             for _ in range(rule.max_impacts):
-                state = resolve_crossing(state, e, rand, barrier)
+                state = resolve_crossing(state, e, rand, barrier, h)
             x1, v1 = state[2]
         return jax.vmap(mirror)(x1, v1, rand)
+
+    if substeps is None or substeps.max_substeps == 1 or not shared.may_be_stiff:
+        return functools.partial(plain_step, h=h)
+
+    n_max = substeps.max_substeps
+
+    def needed(x, v, e, rand):
+        """Sub-steps one path needs at its start state (1 for a non-finite path: it is lost anyway)."""
+        k = jnp.ceil(h * stiffness_rate(path_model(rand), x, v, e[0]) / substeps.limit)
+        return jnp.clip(jnp.where(jnp.isfinite(k), k, 1), 1, n_max).astype(jnp.int32)
+
+    def step(x, v, e, rand):
+        k = jnp.max(jax.vmap(needed)(x, v, e, rand))
+        kf = k.astype(x.dtype)
+
+        def body(i, y):
+            ta, tb = i / kf, (i + 1) / kf
+            sub_e = jax.vmap(lambda p: jnp.stack([_forcing(p, ta), _forcing(p, 0.5 * (ta + tb)), _forcing(p, tb)]))(e)
+            return jax.lax.cond(i < k, lambda y: plain_step(*y, sub_e, rand, h / kf), lambda y: y, y)
+
+        return jax.lax.fori_loop(0, n_max, body, (x, v))
 
     return step
 
 
-def integrate(path_model, rule: ImpactRule, h: float, x0, v0, excitation, rand, slots, n_save: int, initial_slot: int):
+def integrate(
+    path_model,
+    rule: ImpactRule,
+    h: float,
+    x0,
+    v0,
+    excitation,
+    rand,
+    slots,
+    n_save: int,
+    initial_slot: int,
+    substeps: Substeps | None = None,
+):
     """Integrate a batch of paths over the whole time grid and keep only the saved states.
 
     Args:
@@ -206,11 +330,12 @@ def integrate(path_model, rule: ImpactRule, h: float, x0, v0, excitation, rand, 
         slots: shape ``(T,)`` int: the save slot written after each step (``n_save`` = none).
         n_save: number of saved times. Slot ``n_save`` is a scratch row.
         initial_slot: the save slot of ``t = 0`` (``n_save`` if not saved).
+        substeps: sub-stepping of stiff steps, or ``None`` for none.
 
     Returns:
         shape ``(n, n_save, 2)``: ``(x, v)`` at the saved times.
     """
-    step = jax.checkpoint(make_batch_step(path_model, rule, h))
+    step = jax.checkpoint(make_batch_step(path_model, rule, h, substeps))
     n_half, n, m = excitation.shape
     T = (n_half - 1) // 2
     pairs = excitation[1:].reshape(T, 2, n, m)

@@ -45,6 +45,11 @@ class AbstractOscillator:
     def has_barrier(self) -> bool:
         return self.barrier is not None
 
+    @property
+    def may_be_stiff(self) -> bool:
+        """Whether the model has terms that can make explicit RK4 unstable (then sub-stepping is traced)."""
+        return True
+
     def acceleration(self, x, v, xi):
         r"""``x'' = -g(x) - f(x, v) + h(x, v) . xi`` for one path; ``xi`` has shape ``(n_sources,)``."""
         return -self.restoring(x) - self.damping(x, v) + jnp.dot(self.gains(x, v), xi)
@@ -88,6 +93,10 @@ class VibroImpactOscillator(AbstractOscillator):
             check_real(name, getattr(self, name), low=0.0)
         check_real("omega", self.omega, low=0.0, low_open=True)
         _check_impact(self.r, self.barrier)
+
+    @property
+    def may_be_stiff(self) -> bool:
+        return self.gamma is not None  # only cubic damping grows with the state
 
     def restoring(self, x):
         return self.omega**2 * x
@@ -145,6 +154,10 @@ class Oscillator(AbstractOscillator):
         if isinstance(self.n_sources, bool) or not isinstance(self.n_sources, int) or self.n_sources < 1:
             raise ValueError(f"n_sources must be an integer >= 1, got {self.n_sources!r}")
         _check_impact(self.r, self.barrier)
+
+    @property
+    def may_be_stiff(self) -> bool:
+        return self.f is not None or self.g is not None
 
     def restoring(self, x):
         return jnp.zeros_like(x) if self.g is None else self.g(x, self.params)

@@ -31,7 +31,7 @@ class WhiteNoise:
         if arr is None:
             return
         if arr.ndim == 0:
-            check_real("D", arr, low=0.0)
+            check_real("D", self.D, low=0.0)
         elif arr.ndim == 2 and arr.shape[0] == arr.shape[1] and arr.shape[0] >= 1:
             check_real("D", arr)
             if not np.allclose(arr, arr.T, rtol=1e-10, atol=1e-12):

@@ -84,6 +84,7 @@ def _simulate_chunk(scene: Scene, kind: str, rows):
         jnp.asarray(slots),
         n_save,
         slot_of.get(0, n_save),
+        scene.substeps,
     )
 
 
@@ -115,7 +116,8 @@ def _finish(scene: Scene, states, weights, method: str) -> Result:
         warnings.warn(
             f"{int(counts.max())} of {res.n_paths} paths have non-finite states (per saved time: "
             f"{counts.tolist()}); their probability is left out of the densities "
-            "(Result.lost_mass). Reduce dt or the excitation level.",
+            "(Result.lost_mass). Reduce dt or the excitation level, or sub-step stiff steps "
+            "(Scene(..., substeps=jdpim.Substeps())).",
             NonFiniteWarning,
             stacklevel=3,
         )

@@ -12,7 +12,7 @@ import numpy as np
 
 from ._distributions import ANGLE, Normal, Uniform
 from ._excitation import SpectralGrid, SpectralRepresentation
-from ._integrate import ImpactRule
+from ._integrate import ImpactRule, Substeps
 from ._models import AbstractOscillator, n_sources_of
 from ._noise import WhiteNoise
 from ._pytree import check_real, concrete, pytree_dataclass, static_field
@@ -36,6 +36,8 @@ class Scene:
             model field or ``"x0"``/``"v0"``. They become extra DPIM input dimensions.
         excitation: spectral-representation settings.
         impacts: impact-resolution settings.
+        substeps: sub-stepping of stiff steps (cubic damping at large velocities), e.g. ``jdpim.Substeps()``;
+            ``None`` (default) traces none: blow-up is then counted and warned about (``NonFiniteWarning``).
         dtype: ``"float32"`` or ``"float64"`` (needs ``jax_enable_x64``), or ``None`` for JAX's default.
 
     Example:
@@ -56,6 +58,7 @@ class Scene:
     random: Any = static_field(default=())
     excitation: SpectralRepresentation = static_field(default_factory=SpectralRepresentation)
     impacts: ImpactRule = static_field(default_factory=ImpactRule)
+    substeps: Substeps | None = static_field(default=None)
     dtype: str | None = static_field(default=None)
 
     def __post_init__(self):
@@ -74,9 +77,10 @@ class Scene:
         object.__setattr__(self, "dt", float(self.dt))
         object.__setattr__(self, "save_at", self._checked_save_at(self.save_at))
         object.__setattr__(self, "random", self._checked_random(self.random))
-        for name, kind in (("excitation", SpectralRepresentation), ("impacts", ImpactRule)):
-            if not isinstance(getattr(self, name), kind):
+        for name, kind in (("excitation", SpectralRepresentation), ("impacts", ImpactRule), ("substeps", Substeps)):
+            if not isinstance(getattr(self, name), kind) and not (name == "substeps" and self.substeps is None):
                 raise TypeError(f"{name} must be a jdpim.{kind.__name__}, got {getattr(self, name)!r}")
+        self.spectral_grid()  # the cutoff must lie below the Nyquist frequency of the stage grid
         if self.dtype not in (None, "float32", "float64"):
             raise ValueError(f"dtype must be None, 'float32' or 'float64', got {self.dtype!r}")
         if self.dtype == "float64" and not jax.config.jax_enable_x64:

@@ -1,0 +1,158 @@
+"""Bad input: every public constructor and function rejects it before tracing, naming parameter, value and range."""
+
+import math
+
+import numpy as np
+import pytest
+
+import jdpim
+
+INF, NAN = math.inf, math.nan
+
+
+def model(**kw):
+    return jdpim.VibroImpactOscillator(**kw)
+
+
+def scene(**kw):
+    kw.setdefault("t_end", 10.0)
+    kw.setdefault("dt", 0.01)
+    return jdpim.Scene(kw.pop("model", model()), **kw)
+
+
+@pytest.fixture(scope="module")
+def result():
+    """A small result built directly (no simulation): 4 paths, saved at t = 1 and 2."""
+    states = np.stack([np.linspace(0.1, 1.0, 8).reshape(4, 2), np.linspace(-1.0, 1.0, 8).reshape(4, 2)], axis=-1)
+    return jdpim.Result(
+        times=np.array([1.0, 2.0]), states=states, weights=np.full(4, 0.25), barrier=0.0, method="monte_carlo"
+    )
+
+
+CONSTRUCTORS = {
+    # restitution outside [0, 1]
+    "r-above": (lambda: model(r=1.5), r"r must lie in \[0, 1\], got 1\.5"),
+    "r-below": (lambda: model(r=-0.1), r"r must lie in \[0, 1\], got -0\.1"),
+    "r-general-model": (lambda: jdpim.Oscillator(r=2.0), r"r must lie in \[0, 1\], got 2\.0"),
+    "r-nan": (lambda: model(r=NAN), r"r must be finite, got nan"),
+    # other model parameters
+    "alpha-negative": (lambda: model(alpha=-0.01), r"alpha must lie in \[0, inf\), got -0\.01"),
+    "gamma-inf": (lambda: model(gamma=INF), r"gamma must be finite, got inf"),
+    "omega-zero": (lambda: model(omega=0.0), r"omega must lie in \(0, inf\), got 0\.0"),
+    "barrier-nan": (lambda: model(barrier=NAN), r"barrier must be finite, got nan"),
+    "n_sources": (lambda: jdpim.Oscillator(n_sources=0), r"n_sources must be an integer >= 1, got 0"),
+    # noise intensity
+    "D-negative": (lambda: jdpim.WhiteNoise(D=-0.1), r"D must lie in \[0, inf\), got -0\.1"),
+    "D-nan": (lambda: jdpim.WhiteNoise(D=NAN), r"D must be finite"),
+    "D-not-positive-definite": (lambda: jdpim.WhiteNoise(D=[[1.0, 2.0], [2.0, 1.0]]), r"D must be positive definite"),
+    "D-not-symmetric": (lambda: jdpim.WhiteNoise(D=[[1.0, 0.5], [0.2, 1.0]]), r"D must be symmetric"),
+    "D-shape": (lambda: jdpim.WhiteNoise(D=[1.0, 2.0]), r"D must be a scalar or a square \(m, m\) matrix"),
+    # time grid
+    "dt-zero": (lambda: scene(dt=0.0), r"dt must lie in \(0, inf\), got 0\.0"),
+    "dt-negative": (lambda: scene(dt=-0.01), r"dt must lie in \(0, inf\), got -0\.01"),
+    "dt-equals-t_end": (lambda: scene(dt=10.0), r"dt must lie in \(0, t_end=10\.0\), got 10\.0"),
+    "dt-beyond-t_end": (lambda: scene(dt=20.0), r"dt must lie in \(0, t_end=10\.0\), got 20\.0"),
+    "dt-nan": (lambda: scene(dt=NAN), r"dt must be finite, got nan"),
+    "t_end-inf": (lambda: scene(t_end=INF), r"t_end must be finite, got inf"),
+    "t_end-not-multiple": (lambda: scene(dt=0.03), r"t_end=10\.0 must be a whole number of steps dt=0\.03"),
+    # saved times
+    "save-after-t_end": (lambda: scene(save_at=(5.0, 11.0)), r"save_at must lie in \[0, 10\], got"),
+    "save-negative": (lambda: scene(save_at=(-1.0,)), r"save_at must lie in \[0, 10\], got"),
+    "save-decreasing": (lambda: scene(save_at=(5.0, 2.0)), r"save_at must be strictly increasing"),
+    "save-repeated": (lambda: scene(save_at=(2.0, 2.0)), r"save_at must be strictly increasing"),
+    "save-empty": (lambda: scene(save_at=()), r"save_at must be a non-empty 1-D sequence"),
+    "save-off-grid": (lambda: scene(save_at=(0.005,)), r"save_at times \[0\.005\] are not multiples of dt=0\.01"),
+    "save-nan": (lambda: scene(save_at=(NAN,)), r"save_at must be finite"),
+    # initial state
+    "x0-inf": (lambda: scene(x0=INF), r"x0 must be finite, got inf"),
+    "v0-nan": (lambda: scene(v0=NAN), r"v0 must be finite, got nan"),
+    "x0-beyond-barrier": (lambda: scene(x0=-0.1), r"x0=-0\.1 lies beyond the barrier at 0\.0"),
+    # names and shapes
+    "random-unknown-name": (lambda: scene(random={"beta": jdpim.Normal(0.0, 1.0)}), r"random parameter 'beta'"),
+    "noise-sources-mismatch": (
+        lambda: scene(noise=jdpim.WhiteNoise(D=np.eye(2))),
+        r"the model's gains expect 1 noise source\(s\) but noise\.D has 2",
+    ),
+    "dtype": (lambda: scene(dtype="float16"), r"dtype must be None, 'float32' or 'float64', got 'float16'"),
+    "cutoff-above-nyquist": (
+        lambda: scene(dt=0.5, excitation=jdpim.SpectralRepresentation(cutoff=20.0)),
+        r"cutoff=20 rad/s is at or above the Nyquist frequency",
+    ),
+    # numerical settings
+    "impact-method": (lambda: jdpim.ImpactRule(method="flip"), r"method must be 'locate' or 'mirror', got 'flip'"),
+    "max_impacts": (lambda: jdpim.ImpactRule(max_impacts=0), r"max_impacts must be an integer >= 1, got 0"),
+    "stick_velocity": (lambda: jdpim.ImpactRule(stick_velocity=-1.0), r"stick_velocity must lie in \[0, inf\)"),
+    "max_substeps": (lambda: jdpim.Substeps(max_substeps=0), r"max_substeps must be an integer >= 1, got 0"),
+    "substep-limit": (lambda: jdpim.Substeps(limit=3.0), r"limit must lie in \(0, 2\.785\), got 3\.0"),
+    "cutoff": (lambda: jdpim.SpectralRepresentation(cutoff=0.0), r"cutoff must lie in \(0, inf\), got 0\.0"),
+    "normal-std": (lambda: jdpim.Normal(0.0, 0.0), r"std must lie in \(0, inf\), got 0\.0"),
+    "uniform-order": (lambda: jdpim.Uniform(1.0, 0.0), r"Uniform needs high > low, got low=1\.0, high=0\.0"),
+}
+
+
+@pytest.mark.parametrize("case", CONSTRUCTORS, ids=list(CONSTRUCTORS))
+def test_constructor_rejects(case):
+    build, message = CONSTRUCTORS[case]
+    with pytest.raises(ValueError, match=message):
+        build()
+
+
+@pytest.mark.parametrize(
+    "build",
+    [lambda: jdpim.Scene("not a model"), lambda: scene(noise=0.03), lambda: scene(impacts="locate")],
+    ids=["model", "noise", "impacts"],
+)
+def test_wrong_types_are_rejected(build):
+    with pytest.raises(TypeError, match=r"must be"):
+        build()
+
+
+RUNS = {
+    "n_points": (lambda s: jdpim.dpim(s, n_points=1), r"n_points must be an integer >= 2, got 1"),
+    "n_samples": (lambda s: jdpim.monte_carlo(s, n_samples=1), r"n_samples must be an integer >= 2, got 1"),
+    "seed": (lambda s: jdpim.monte_carlo(s, n_samples=8, seed=-1), r"seed must be an integer >= 0, got -1"),
+    "chunk_size": (lambda s: jdpim.monte_carlo(s, n_samples=8, chunk_size=0), r"chunk_size must be an integer >= 1"),
+    "points-mismatch": (
+        lambda s: jdpim.dpim(s, points=jdpim.select_points((jdpim.Uniform(),), 8)),
+        r"points\.distributions do not match",
+    ),
+}
+
+
+@pytest.mark.parametrize("case", RUNS, ids=list(RUNS))
+def test_pipelines_reject_before_tracing(case):
+    run, message = RUNS[case]
+    with pytest.raises(ValueError, match=message):
+        run(scene())
+
+
+RESULT_CALLS = {
+    "grid-empty": (lambda r: r.pdf("x", [], 1.0), r"grid must be a 1-D array with at least 2 points, got shape \(0,\)"),
+    "grid-one-point": (lambda r: r.pdf("x", [0.5], 1.0), r"grid must be a 1-D array with at least 2 points"),
+    "grid-decreasing": (lambda r: r.pdf("v", [0.0, 1.0, 0.5], 1.0), r"grid must be strictly increasing"),
+    "grid-2d": (lambda r: r.pdf("v", np.zeros((2, 2)), 1.0), r"grid must be a 1-D array"),
+    "grid-nan": (lambda r: r.pdf("v", [0.0, NAN], 1.0), r"grid must be finite"),
+    "x_grid": (lambda r: r.joint_pdf([1.0, 0.0], [0.0, 1.0], 1.0), r"x_grid must be strictly increasing"),
+    "v_grid": (lambda r: r.joint_pdf([0.0, 1.0], [], 1.0), r"v_grid must be a 1-D array"),
+    "edges": (lambda r: r.histogram("x", [0.0, 0.0, 1.0], 1.0), r"edges must be strictly increasing"),
+    "variable": (lambda r: r.pdf("y", [0.0, 1.0], 1.0), r"var must be one of \('x', 'v'\), got 'y'"),
+    "samples-variable": (lambda r: r.samples("displacement", 1.0), r"var must be one of"),
+    "time-not-saved": (lambda r: r.pdf("x", [0.0, 1.0], 1.5), r"t=1\.5 was not saved; saved times are \[1\.0, 2\.0\]"),
+    "bandwidth": (lambda r: r.pdf("x", [0.0, 1.0], 1.0, bandwidth=-0.1), r"bandwidth must lie in \(0, inf\)"),
+    "bandwidth-pair": (lambda r: r.joint_pdf([0.0, 1.0], [0.0, 1.0], 1.0, bandwidth=0.1), r"bandwidth must be None or"),
+    "rule": (lambda r: r.pdf("x", [0.0, 1.0], 1.0, rule="magic"), r"rule must be one of"),
+}
+
+
+@pytest.mark.parametrize("case", RESULT_CALLS, ids=list(RESULT_CALLS))
+def test_result_methods_reject(result, case):
+    call, message = RESULT_CALLS[case]
+    with pytest.raises(ValueError, match=message):
+        call(result)
+
+
+def test_valid_inputs_pass(result):
+    """The boundaries of the allowed ranges are accepted (r = 0 and 1, D = 0, save at 0 and t_end)."""
+    for r in (0.0, 1.0):
+        scene(model=model(r=r), noise=jdpim.WhiteNoise(D=0.0), save_at=(0.0, 10.0))
+    assert np.asarray(result.pdf("x", [0.0, 0.5, 1.0], 2.0)).shape == (3,)
