@@ -18,14 +18,6 @@ import jdpim
 import jdpim.exact
 from jdpim._integrate import ImpactRule, integrate
 
-
-@pytest.fixture(autouse=True)
-def _slow_only_when_selected(request):
-    """The ``slow`` marker promises "not run by default": run these only when ``-m`` names ``slow``."""
-    if request.node.get_closest_marker("slow") and "slow" not in request.config.getoption("markexpr"):
-        pytest.skip("heavier setting: select with -m slow")
-
-
 RS = (0.0, 0.3, 0.8, 0.98, 1.0)
 DS = (0.01, 0.3, 1.0)
 GAMMAS = (0.0, 0.03, 1.0, 10.0)

@@ -57,32 +57,21 @@ QUICK = Sweep(
 )
 
 
+def _scene(model, t_end: float, dt: float, excitation, scene_kw) -> Scene:
+    excitation = excitation or SpectralRepresentation()
+    return Scene(
+        model, noise=WhiteNoise(D=D), t_end=t_end, dt=dt, save_at=(10.0, t_end), excitation=excitation, **scene_kw
+    )
+
+
 def elastic_scene(t_end: float, dt: float, excitation: SpectralRepresentation | None = None, **scene_kw) -> Scene:
     """The exact-solution case (r = 1, linear damping), saved at t = 10 s and t_end."""
-    model = VibroImpactOscillator(alpha=ALPHA, gamma=None, r=1.0)
-    return Scene(
-        model,
-        noise=WhiteNoise(D=D),
-        t_end=t_end,
-        dt=dt,
-        save_at=(10.0, t_end),
-        excitation=excitation or SpectralRepresentation(),
-        **scene_kw,
-    )
+    return _scene(VibroImpactOscillator(alpha=ALPHA, gamma=None, r=1.0), t_end, dt, excitation, scene_kw)
 
 
 def paper_scene(t_end: float, dt: float, excitation: SpectralRepresentation | None = None, **scene_kw) -> Scene:
     """The reference example (alpha = gamma = 0.03, r = 0.98, D = 0.03), saved at t = 10 s and t_end."""
-    model = VibroImpactOscillator(alpha=ALPHA, gamma=GAMMA, r=R)
-    return Scene(
-        model,
-        noise=WhiteNoise(D=D),
-        t_end=t_end,
-        dt=dt,
-        save_at=(10.0, t_end),
-        excitation=excitation or SpectralRepresentation(),
-        **scene_kw,
-    )
+    return _scene(VibroImpactOscillator(alpha=ALPHA, gamma=GAMMA, r=R), t_end, dt, excitation, scene_kw)
 
 
 def grids(scale: float) -> tuple[np.ndarray, np.ndarray]:
