@@ -15,6 +15,8 @@ import math
 import jax
 import jax.numpy as jnp
 
+from ._pytree import check_grid, check_real
+
 RULES = ("chen", "silverman", "scott")
 CHEN_C = 1.25  # constant c of Chen & Yang's rule; L1 errors vs exact solutions were lowest for c = 1-1.5 (README)
 _POINT_CHUNK = 2048
@@ -73,6 +75,14 @@ def bandwidth(samples, weights, rule: str = "chen", *, dim: int = 1, c: float | 
     return (1.06 * std * n ** (-0.2)) if dim == 1 else std * n ** (-1.0 / 6)
 
 
+def _check_kernel(grid_name, grid, sigma, barrier):
+    """Validate concrete kernel arguments (tracers pass through)."""
+    check_grid(grid_name, grid)
+    check_real("bandwidth", sigma, low=0.0, low_open=True)
+    if barrier is not None:
+        check_real("barrier", barrier)
+
+
 def _gauss(z):
     return jnp.exp(-0.5 * z * z) / math.sqrt(2.0 * math.pi)
 
@@ -104,6 +114,7 @@ def kde(samples, weights, grid, sigma, barrier=None):
         sigma: kernel standard deviation (> 0).
         barrier: reflect the kernel at this position (density zero below it), or ``None``.
     """
+    _check_kernel("grid", grid, sigma, barrier)
     samples, weights = _clean(samples, weights)
     grid = jnp.asarray(grid, samples.dtype)
 
@@ -117,6 +128,8 @@ def kde(samples, weights, grid, sigma, barrier=None):
 
 def kde_2d(x, v, weights, x_grid, v_grid, sigma_x, sigma_v, barrier=None):
     """Weighted product-Gaussian KDE of ``(x, v)``; shape ``(len(x_grid), len(v_grid))``; reflected in ``x``."""
+    _check_kernel("x_grid", x_grid, sigma_x, barrier)
+    _check_kernel("v_grid", v_grid, sigma_v, None)
     ok = jnp.isfinite(x) & jnp.isfinite(v)
     x, v, weights = jnp.where(ok, x, 0.0), jnp.where(ok, v, 0.0), jnp.where(ok, weights, 0.0)
     x_grid = jnp.asarray(x_grid, x.dtype)
@@ -138,6 +151,7 @@ def histogram(samples, weights, edges):
 
     Mass outside the edges (or on non-finite paths) is not renormalised into the bins.
     """
+    check_grid("edges", edges)
     total = jnp.sum(weights)
     samples, weights = _clean(samples, weights)
     counts, _ = jnp.histogram(samples, bins=edges, weights=weights)

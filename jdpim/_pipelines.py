@@ -94,6 +94,8 @@ def simulate(scene: Scene, rows, *, kind: str, chunk_size: int):
 
     Jitted; differentiable with respect to every traced leaf of ``scene``.
     """
+    if kind not in ("dpim", "monte_carlo"):
+        raise ValueError(f"kind must be 'dpim' or 'monte_carlo', got {kind!r}")
     n = rows.shape[0]
     pad = (-n) % chunk_size
     padded = jnp.concatenate([rows, jnp.repeat(rows[:1], pad, axis=0)]) if pad else rows

@@ -78,3 +78,19 @@ def test_histogram_is_normalised_by_all_mass():
     w = jnp.full(4, 0.25)
     edges = jnp.array([0.0, 0.5, 1.0])
     np.testing.assert_allclose(np.asarray(jdpim.histogram(y, w, edges)), [1.0, 0.5])
+
+
+@pytest.mark.parametrize(
+    ("call", "match"),
+    [
+        (lambda y, w: jdpim.kde(y, w, np.array([1.0, 0.0]), 0.2), "strictly increasing"),
+        (lambda y, w: jdpim.kde(y, w, np.linspace(0, 1, 5), 0.0), "bandwidth"),
+        (lambda y, w: jdpim.kde(y, w, np.linspace(0, 1, 5), 0.2, barrier=np.nan), "barrier"),
+        (lambda y, w: jdpim.kde_2d(y, y, w, np.linspace(0, 1, 5), np.array([0.0]), 0.2, 0.2), "v_grid"),
+        (lambda y, w: jdpim.histogram(y, w, np.array([0.0, 0.0, 1.0])), "edges"),
+    ],
+)
+def test_density_arguments_are_validated(call, match):
+    y, w = jnp.ones(4), jnp.full(4, 0.25)
+    with pytest.raises(ValueError, match=match):
+        call(y, w)
