@@ -3,8 +3,6 @@ Integral Method (DPIM), with Monte Carlo simulation and exact solutions beside i
 
 from importlib.metadata import PackageNotFoundError, version
 
-import jax.numpy as jnp  # noqa: F401  (re-exported for doctests: ``jdpim.jnp``)
-
 from ._density import RULES as RULES
 from ._density import bandwidth as bandwidth
 from ._density import histogram as histogram

@@ -353,7 +353,7 @@ def integrate(
     return jnp.moveaxis(buf[:n_save], 0, 1)
 
 
-def with_parameters(model: Any, names: tuple[str, ...], values) -> Any:
+def with_random_parameters(model: Any, names: tuple[str, ...], values) -> Any:
     """``model`` with the fields ``names`` replaced by ``values[i]`` (one path's random parameters)."""
     if values is None or not names:
         return model

@@ -74,9 +74,9 @@ class VibroImpactOscillator(AbstractOscillator):
         omega: natural frequency (> 0), rad/s.
 
     Example:
-        >>> import jdpim
+        >>> import jdpim, jax.numpy as jnp
         >>> model = jdpim.VibroImpactOscillator(alpha=0.03, gamma=0.03, r=0.98)
-        >>> float(model.acceleration(1.0, 0.0, jdpim.jnp.zeros(1)))
+        >>> float(model.acceleration(1.0, 0.0, jnp.zeros(1)))
         -1.0
 
     The defaults are the seed paper's example (its eq. 7): alpha = gamma = 0.03, r = 0.98.

@@ -16,7 +16,7 @@ import numpy as np
 
 from ._distributions import elementary_ppf
 from ._excitation import gaussian_coefficients, random_function_coefficients, synthesize
-from ._integrate import integrate, with_parameters
+from ._integrate import integrate, with_random_parameters
 from ._points import PointSet, select_points
 from ._pytree import check_int, concrete
 from ._result import Result
@@ -63,7 +63,7 @@ def _simulate_chunk(scene: Scene, kind: str, rows):
     model_cols = jnp.asarray([names.index(n) for n in model_names], dtype=jnp.int32)
 
     def path_model(r):
-        return scene.model if r is None else with_parameters(scene.model, model_names, r[model_cols])
+        return scene.model if r is None else with_random_parameters(scene.model, model_names, r[model_cols])
 
     n = rows.shape[0]
     x_default = scene.x0 if scene.x0 is not None else (scene.model.barrier if scene.model.has_barrier else 0.0)
@@ -72,7 +72,11 @@ def _simulate_chunk(scene: Scene, kind: str, rows):
     save_steps = scene.save_steps
     slot_of = {s: i for i, s in enumerate(save_steps)}
     n_save = len(save_steps)
-    slots = np.array([slot_of.get(k + 1, n_save) for k in range(scene.n_steps)], dtype=np.int32)
+    slots = np.full(scene.n_steps, n_save, dtype=np.int32)  # slot written after step k (time k + 1)
+    after = [(s - 1, i) for i, s in enumerate(save_steps) if s > 0]
+    if after:
+        steps, idx = zip(*after, strict=True)
+        slots[list(steps)] = idx
     return integrate(
         path_model,
         scene.impacts,

@@ -108,15 +108,20 @@ def _select_points(distributions, n_points, n_reference, seed) -> PointSet:
         base = qmc.Sobol(d, scramble=False)
         base.fast_forward(1)
         u = base.random(n_points)
-        ref = qmc.Sobol(d, scramble=True, seed=seed).random(n_reference)
     ranks = np.argsort(np.argsort(u, axis=0, kind="stable"), axis=0, kind="stable")
-    mid = (ranks + 0.5) / n_points
-    theta = _map(distributions, mid)
+    return assign_probabilities(_map(distributions, (ranks + 0.5) / n_points), distributions, n_reference, seed)
+
+
+def assign_probabilities(theta: np.ndarray, distributions, n_reference: int, seed: int) -> PointSet:
+    """Steps 3-4: Voronoi-cell probabilities from scrambled-Sobol reference samples, then rearrangement."""
+    d = len(distributions)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # Sobol balance warning for n not a power of 2
+        ref = qmc.Sobol(d, scramble=True, seed=seed).random(n_reference)
     weights = voronoi_probabilities(
         _standardise(distributions, theta), _standardise(distributions, _map(distributions, ref))
     )
-    theta = rearrange(theta, weights, distributions)
-    return PointSet(theta=theta, weights=weights, distributions=distributions)
+    return PointSet(theta=rearrange(theta, weights, distributions), weights=weights, distributions=distributions)
 
 
 def voronoi_probabilities(points: np.ndarray, reference: np.ndarray) -> np.ndarray:
@@ -140,6 +145,7 @@ def _map(distributions, u):
 
 
 def _standardise(distributions, theta):
+    """Coordinates centred and scaled by each distribution's mean and std (NumPy or JAX arrays)."""
     centre = np.array([dist.mean for dist in distributions])
     scale = np.array([dist.std for dist in distributions])
-    return (theta - centre) / scale
+    return (theta - centre[None, :]) / scale[None, :]

@@ -33,14 +33,8 @@ from scipy.stats import qmc
 
 from ._density import _kernel_matrix, bandwidth, kde
 from ._distributions import elementary_ppf
-from ._points import PointSet, rearrange, voronoi_probabilities
+from ._points import PointSet, _standardise, assign_probabilities
 from ._pytree import check_int, check_real
-
-
-def _standardise(distributions, theta):
-    centre = jnp.asarray([d.mean for d in distributions], theta.dtype)
-    scale = jnp.asarray([d.std for d in distributions], theta.dtype)
-    return (theta - centre[None, :]) / scale[None, :]
 
 
 def _theta(distributions, u):
@@ -125,14 +119,8 @@ def refine_points(
 
     z = run(jnp.asarray(np.log(u0) - np.log1p(-u0)))
     theta = np.asarray(_theta(dists, jax.nn.sigmoid(z)), dtype=float)
-    exact_ref = qmc.Sobol(d, scramble=True, seed=seed + 1).random(
-        2 ** int(np.clip(math.ceil(math.log2(1000 * n)), 18, 23))
-    )
-    ref_theta = np.asarray(_theta(dists, jnp.asarray(exact_ref)), dtype=float)
-    weights = voronoi_probabilities(
-        np.asarray(_standardise(dists, jnp.asarray(theta))), np.asarray(_standardise(dists, jnp.asarray(ref_theta)))
-    )
-    return PointSet(theta=rearrange(theta, weights, dists), weights=weights, distributions=dists)
+    n_exact = 2 ** int(np.clip(math.ceil(math.log2(1000 * n)), 18, 23))
+    return assign_probabilities(theta, dists, n_exact, seed + 1)
 
 
 def loo_log_likelihood(samples, weights, sigma, barrier=None):

@@ -94,11 +94,8 @@ def energy_damping_pdf(h: Callable[[np.ndarray], np.ndarray], D: float):
     while potential(upper) < 60.0:
         upper *= 2.0
     norm = np.pi * integrate.quad(lambda E: np.exp(-potential(E)), 0.0, upper, limit=200)[0]
-    Es = np.linspace(0.0, upper, 4001)
-    phi = (
-        np.concatenate([[0.0], np.cumsum([integrate.quad(h, a, b)[0] for a, b in zip(Es[:-1], Es[1:], strict=True)])])
-        / D
-    )
+    Es = np.linspace(0.0, upper, 40001)
+    phi = integrate.cumulative_trapezoid(h(Es), Es, initial=0.0) / D
 
     def pdf(x, v):
         x, v = np.asarray(x, float), np.asarray(v, float)
