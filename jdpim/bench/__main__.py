@@ -1,4 +1,4 @@
-"""``python -m jdpim.bench accuracy [--quick] [--case elastic paper] [--out DIR]``: accuracy versus time."""
+"""``python -m jdpim.bench {accuracy,budget,speed} [--quick] [--out DIR]``: accuracy vs time, error budget, speed."""
 
 from __future__ import annotations
 
@@ -19,6 +19,9 @@ def main(argv=None) -> int:
     budget = sub.add_parser("budget", help="error budget: one knob at a time (N, dt, cutoff, dw, bandwidth, dtype)")
     budget.add_argument("--out", type=pathlib.Path, default=pathlib.Path("jdpim_out/bench"))
     budget.add_argument("--quick", action="store_true")
+    speed = sub.add_parser("speed", help="wall and compile times, split, memory, against a NumPy RK4 MCS")
+    speed.add_argument("--quick", action="store_true", help="float32 only, MCS 1e4 only")
+    speed.add_argument("--out", type=pathlib.Path, default=pathlib.Path("jdpim_out/bench"))
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
     if args.command == "accuracy":
         from .accuracy import QUICK, Sweep, sweep, write
@@ -36,6 +39,10 @@ def main(argv=None) -> int:
                 on_row=lambda partial: (results.__setitem__(-1, partial), write(results, args.out)),
             )
         files = write(results, args.out)
+    elif args.command == "speed":
+        from .speed import run_speed
+
+        files = run_speed(args.out, quick=args.quick, log=lambda s: print(s, flush=True))
     else:
         from .budget import run_budget
 
