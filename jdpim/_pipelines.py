@@ -2,12 +2,15 @@
 
 Data flow: scene -> input rows (DPIM points or MC keys) -> spectral coefficients -> FFT excitation ->
 RK4 trajectories (only the saved times kept) -> :class:`Result`. Paths are processed in chunks
-(``lax.map``) so memory stays bounded; every chunk is a pure function of its rows.
+(``lax.map``) so memory stays bounded; every chunk is a pure function of its rows. Large runs are
+streamed in blocks of chunks from a host loop, and the path axis is sharded over the local devices.
 """
 
 from __future__ import annotations
 
 import functools
+import sys
+import time
 import warnings
 
 import jax
@@ -92,12 +95,7 @@ def _simulate_chunk(scene: Scene, kind: str, rows):
     )
 
 
-@functools.partial(jax.jit, static_argnames=("kind", "chunk_size"))
-def simulate(scene: Scene, rows, *, kind: str, chunk_size: int):
-    """Saved states ``(N, S, 2)`` for input ``rows`` (``(N, d)`` DPIM points or ``(N, 2)`` MC key data).
-
-    Jitted; differentiable with respect to every traced leaf of ``scene``.
-    """
+def _simulate(scene: Scene, rows, *, kind: str, chunk_size: int):
     if kind not in ("dpim", "monte_carlo"):
         raise ValueError(f"kind must be 'dpim' or 'monte_carlo', got {kind!r}")
     n = rows.shape[0]
@@ -106,6 +104,106 @@ def simulate(scene: Scene, rows, *, kind: str, chunk_size: int):
     chunks = padded.reshape(-1, chunk_size, *rows.shape[1:])
     out = jax.lax.map(functools.partial(_simulate_chunk, scene, kind), chunks)
     return out.reshape(-1, *out.shape[2:])[:n]
+
+
+@functools.partial(jax.jit, static_argnames=("kind", "chunk_size"))
+def simulate(scene: Scene, rows, *, kind: str, chunk_size: int):
+    """Saved states ``(N, S, 2)`` for input ``rows`` (``(N, d)`` DPIM points or ``(N, 2)`` MC key data).
+
+    Jitted; differentiable with respect to every traced leaf of ``scene``. One device, one call; see
+    :func:`run_paths` for sharding over devices and streaming in blocks.
+    """
+    return _simulate(scene, rows, kind=kind, chunk_size=chunk_size)
+
+
+def _is_traced(tree) -> bool:
+    return any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(tree))
+
+
+def _devices(devices):
+    """The devices to shard the path axis over: ``None`` means every local device."""
+    if devices is None:
+        return tuple(jax.local_devices())
+    devices = tuple(devices)
+    if not devices or not all(isinstance(d, jax.Device) for d in devices):
+        raise ValueError(f"devices must be a non-empty sequence of jax.Device, got {devices!r}")
+    return devices
+
+
+@functools.lru_cache(maxsize=32)
+def _sharded_simulate(kind: str, chunk_size: int, devices: tuple):
+    """``simulate`` with the path axis split over ``devices`` (one shard of whole chunks per device)."""
+    mesh = jax.sharding.Mesh(np.asarray(devices), ("paths",))
+    spec = jax.sharding.PartitionSpec("paths")
+    local = functools.partial(_simulate, kind=kind, chunk_size=chunk_size)
+    body = jax.shard_map(
+        local, mesh=mesh, in_specs=(jax.sharding.PartitionSpec(), spec), out_specs=spec, check_vma=False
+    )
+    return jax.jit(body), jax.sharding.NamedSharding(mesh, spec)
+
+
+class _Progress:
+    """A one-line text progress report on stderr (``paths done / total``, elapsed and remaining time)."""
+
+    def __init__(self, total: int, label: str, enabled: bool):
+        self.total, self.label, self.enabled, self.t0 = total, label, enabled, time.perf_counter()
+
+    def update(self, done: int):
+        if not self.enabled:
+            return
+        elapsed = time.perf_counter() - self.t0
+        eta = elapsed * (self.total - done) / max(done, 1)
+        end = "\n" if done >= self.total else ""
+        print(
+            f"\r{self.label}: {done}/{self.total} paths, {elapsed:.1f} s, ~{eta:.0f} s left", end=end, file=sys.stderr
+        )
+        sys.stderr.flush()
+
+
+def run_paths(
+    scene: Scene, rows, *, kind: str, chunk_size: int, block_size=None, devices=None, progress=None, label=""
+):
+    """Saved states ``(N, S, 2)`` of ``rows``, sharded over ``devices`` and streamed in blocks of paths.
+
+    Args:
+        scene, rows, kind, chunk_size: as for :func:`simulate`.
+        block_size: paths per device call (``None``: 16 chunks per device). Larger runs are processed block by
+            block in a host loop, each block's saved states moved to host memory, so that memory is
+            bounded by one block whatever ``N``; the result is then one array.
+        devices: devices to shard the path axis over (``None``: every local device). Each path is a
+            pure function of its row, so the states do not depend on the devices or the blocks.
+        progress: report progress on stderr (``None``: only when there is more than one block).
+        label: the progress line's prefix.
+
+    Under a JAX transformation (traced scene or rows) this is :func:`simulate`, unsharded and unstreamed.
+    """
+    if _is_traced((scene, rows)):
+        return simulate(scene, rows, kind=kind, chunk_size=chunk_size)
+    devices = _devices(devices)
+    n = rows.shape[0]
+    unit = chunk_size * len(devices)
+    block = 16 * unit if block_size is None else check_int("block_size", block_size, low=1)
+    block = -(-min(block, n) // unit) * unit  # whole chunks on every device
+    n_blocks = -(-n // block)
+    if len(devices) == 1:
+        run = functools.partial(simulate, kind=kind, chunk_size=chunk_size)
+        sharding = jax.sharding.SingleDeviceSharding(devices[0])
+    else:
+        fn, sharding = _sharded_simulate(kind, chunk_size, devices)
+        run = fn
+    bar = _Progress(n, label or kind, n_blocks > 1 if progress is None else bool(progress))
+    pad = n_blocks * block - n
+    rows = jnp.concatenate([rows, jnp.repeat(rows[:1], pad, axis=0)]) if pad else rows
+    if n_blocks == 1:
+        out = run(scene, jax.device_put(rows, sharding))
+        bar.update(n)
+        return out[:n] if pad else out
+    parts = []
+    for b in range(n_blocks):
+        parts.append(np.asarray(run(scene, jax.device_put(rows[b * block : (b + 1) * block], sharding))))
+        bar.update(min(n, (b + 1) * block))
+    states = np.concatenate(parts)[:n]
+    return jax.device_put(states, sharding if n % len(devices) == 0 else devices[0])
 
 
 def _finish(scene: Scene, states, weights, method: str) -> Result:
@@ -163,7 +261,13 @@ def monte_carlo_inputs(scene: Scene, n_samples: int = 10_000, *, seed: int = 0, 
 
 
 def dpim(
-    scene: Scene, n_points: int = 1000, *, points: PointSet | None = None, chunk_size: int | None = None
+    scene: Scene,
+    n_points: int = 1000,
+    *,
+    points: PointSet | None = None,
+    chunk_size: int | None = None,
+    devices=None,
+    progress: bool | None = None,
 ) -> Result:
     r"""Response PDFs by the Direct Probability Integral Method.
 
@@ -181,9 +285,12 @@ def dpim(
         n_points: number of representative points (>= 2), if ``points`` is not given.
         points: a precomputed :class:`PointSet` matching ``scene.input_distributions()``.
         chunk_size: paths per chunk, or ``None`` for a memory-based default.
+        devices: devices to split the points over (``None``: every local device); the states are the
+            same whatever the devices.
+        progress: progress line on stderr (``None``: only for runs of more than one block of paths).
 
     Returns:
-        :class:`Result` with ``weights = P_q``.
+        :class:`Result` with ``weights = P_q``; ``states`` is sharded over ``devices``.
 
     Example:
         >>> import jdpim, numpy as np
@@ -195,11 +302,19 @@ def dpim(
     References: Chen & Yang (2019), CMAME 357; Chen, Yang & Li (2016), Structural Safety 59.
     """
     rows, weights, chunk_size = dpim_inputs(scene, n_points, points=points, chunk_size=chunk_size)
-    states = simulate(scene, rows, kind="dpim", chunk_size=chunk_size)
+    states = run_paths(scene, rows, kind="dpim", chunk_size=chunk_size, devices=devices, progress=progress)
     return _finish(scene, states, weights, "dpim")
 
 
-def monte_carlo(scene: Scene, n_samples: int = 10_000, *, seed: int = 0, chunk_size: int | None = None) -> Result:
+def monte_carlo(
+    scene: Scene,
+    n_samples: int = 10_000,
+    *,
+    seed: int = 0,
+    chunk_size: int | None = None,
+    devices=None,
+    progress: bool | None = None,
+) -> Result:
     """Response PDFs by Monte Carlo simulation with Gaussian spectral coefficients (same excitation grid).
 
     Args:
@@ -207,9 +322,12 @@ def monte_carlo(scene: Scene, n_samples: int = 10_000, *, seed: int = 0, chunk_s
         n_samples: number of sample paths (>= 2).
         seed: PRNG seed; the same seed gives the same result whatever ``chunk_size``.
         chunk_size: paths per chunk, or ``None`` for a memory-based default.
+        devices: devices to split the samples over (``None``: every local device); the same seed gives
+            the same states whatever the devices.
+        progress: progress line on stderr (``None``: only for runs of more than one block of paths).
 
     Returns:
-        :class:`Result` with equal weights ``1 / n_samples``.
+        :class:`Result` with equal weights ``1 / n_samples``; ``states`` is sharded over ``devices``.
 
     Example:
         >>> import jdpim
@@ -218,5 +336,5 @@ def monte_carlo(scene: Scene, n_samples: int = 10_000, *, seed: int = 0, chunk_s
         (32, 1, 2)
     """
     rows, weights, chunk_size = monte_carlo_inputs(scene, n_samples, seed=seed, chunk_size=chunk_size)
-    states = simulate(scene, rows, kind="monte_carlo", chunk_size=chunk_size)
+    states = run_paths(scene, rows, kind="monte_carlo", chunk_size=chunk_size, devices=devices, progress=progress)
     return _finish(scene, states, weights, "monte_carlo")
