@@ -181,6 +181,7 @@ def run_paths(
         return simulate(scene, rows, kind=kind, chunk_size=chunk_size)
     devices = _devices(devices)
     n = rows.shape[0]
+    chunk_size = min(chunk_size, -(-n // len(devices)))  # no device left with only padding
     unit = chunk_size * len(devices)
     block = 16 * unit if block_size is None else check_int("block_size", block_size, low=1)
     block = -(-min(block, n) // unit) * unit  # whole chunks on every device
