@@ -8,7 +8,7 @@ r"""Spectral representation of white noise, generated for all paths at once with
 so ``E[xi^2] = 2 S0 (w_u + dw / 2)`` for the cutoff ``w_u = K dw``. The constant term ``X_0`` (half
 weight: the trapezoidal rule at ``w = 0``) matters: without it the autocorrelation carries a negative
 offset ``-D dw / pi`` at every lag, and displacement variances at early times come out several per cent
-low (measured: -8 % at t = 2 with dw = 0.25; DESIGN-style runs). Monte Carlo uses independent
+low (measured: -8 % at t = 2 with dw = 0.25). Monte Carlo uses independent
 standard normal ``X_k, Y_k``. DPIM uses the random functions of Liu, Liu & Peng (2016),
 ``X_k = sqrt2 cos(m_k Theta1 + pi/4)``, ``Y_k = sqrt2 cos(m_k Theta2 + pi/4)`` with
 ``Theta ~ U[-pi, pi)`` and ``m_k`` a fixed permutation of ``1..K``: orthonormal, so second-order
@@ -51,7 +51,7 @@ class SpectralRepresentation:
         offset: time shift in s of the simulated window inside the period, or ``None`` for
             ``10 * 2 pi / cutoff`` (ten cutoff periods away from the spiky origin).
         permute: map harmonic ``k`` to a fixed random index ``m_k`` (DPIM random functions). With
-            ``m_k = k`` the DPIM excitation paths are travelling spikes (DESIGN.md section 3).
+            ``m_k = k`` the DPIM excitation paths are travelling spikes (docs/accuracy.md).
         seed: seed of that permutation.
         random_functions: DPIM coefficients. ``"rayleigh"`` (default): Box-Muller pairs
             ``X_k + i Y_k = sqrt(-2 ln u_k) exp(i m_k Theta2)``, ``u_k = frac(m_k (Theta1 + pi) / 2 pi)``:

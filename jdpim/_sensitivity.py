@@ -7,7 +7,7 @@ for a parameter ``lambda`` (``alpha``, ``gamma``, ``r``, ``barrier``, ``omega`` 
 noise intensity ``D``). The point set ``theta_q, P_q`` does not depend on ``lambda``; the trajectory
 sensitivities ``dy_q / d lambda`` come from forward- or reverse-mode differentiation through the
 excitation, the RK4 scan and the located impacts (whose event-time shift gives the saltation matrix,
-DESIGN.md section 5), and ``lambda = barrier`` also moves the reflection of the kernel.
+README "Numerics"), and ``lambda = barrier`` also moves the reflection of the kernel.
 
 Bandwidth: by default the rule-based ``sigma`` is evaluated at the nominal parameters and then held
 fixed, so the result is the exact derivative of the computed (smoothed) density

@@ -1,7 +1,7 @@
 r"""Tuning with optax: point sets with lower GF-discrepancy, and kernel bandwidths.
 
 **Point sets.** After the rearrangement of step 4 (``jdpim.select_points``) the GF-discrepancy equals
-``max_q P_q / 2`` exactly (DESIGN.md section 2), so lowering it means evening out the Voronoi cell
+``max_q P_q / 2`` exactly, so lowering it means evening out the Voronoi cell
 probabilities. Neither the max nor the nearest-point assignment is differentiable; the surrogate uses
 
 .. math::  \tilde P_q = \frac1M \sum_m \operatorname{softmax}_q\big(-\|r_m - s_q\|^2 / (2\tau^2)\big),

@@ -1,4 +1,4 @@
-r"""Exact and reference solutions for the oscillator with a rigid barrier at ``x = b`` (DESIGN.md section 4).
+r"""Exact and reference solutions for the oscillator with a rigid barrier at ``x = b``.
 
 Notation: ``H = (x^2 + v^2) / 2`` (unit natural frequency), ``a = alpha / 2``, ``wd = sqrt(1 - a^2)``.
 

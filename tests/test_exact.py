@@ -44,7 +44,7 @@ def test_energy_damping_reduces_to_linear_case_and_normalises():
 
 @pytest.mark.parametrize(("D", "ex2"), [(0.01, 0.1755), (0.03, 0.4040), (0.08, 0.7841)])
 def test_averaging_second_moments(D, ex2):
-    """DESIGN.md: stochastic averaging gives E[x^2] = 0.1755, 0.4040, 0.7841 for the paper's system."""
+    """Stochastic averaging gives E[x^2] = 0.1755, 0.4040, 0.7841 for the paper's system."""
     assert exact.averaging_second_moment(0.03, 0.03, 0.98, D) == pytest.approx(ex2, abs=6e-5)
 
 

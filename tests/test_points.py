@@ -32,7 +32,7 @@ def test_weights_are_probabilities(points_2d):
 def test_gf_discrepancy_after_rearrangement_is_half_max_weight(points_2d):
     d = points_2d.discrepancy()
     assert d == pytest.approx(points_2d.weights.max() / 2, rel=1e-9)
-    assert 1 / (2 * 1000) <= d < 1.5e-3  # DESIGN.md: 8.5-9e-4 typical for N = 1000 in 2-D
+    assert 1 / (2 * 1000) <= d < 1.5e-3  # 8.5-9e-4 is typical for N = 1000 in 2-D
 
 
 def test_gf_discrepancy_matches_brute_force():
