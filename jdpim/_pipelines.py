@@ -25,18 +25,35 @@ from ._pytree import check_int, concrete
 from ._result import Result
 from ._scene import Scene
 
-MEMORY_BUDGET = 512 * 2**20  # bytes of excitation work per chunk
+MEMORY_BUDGET = 512 * 2**20  # bytes of excitation work per chunk where the device does not report its memory
+DEVICE_MEMORY_SHARE = 0.5  # share of an accelerator's memory one chunk's excitation work may take
 
 
 class NonFiniteWarning(RuntimeWarning):
     """Some paths produced non-finite states (blow-up); their mass is left out of every density."""
 
 
+def _largest_chunk(scene: Scene) -> int:
+    """The most paths one chunk may hold: XLA indexes arrays with 32-bit integers."""
+    return (2**31 - 1) // (scene.n_sources * scene.spectral_grid().n_fft)
+
+
+def memory_budget() -> int:
+    """Bytes of excitation work per chunk: a share of the first local device's memory if it reports it."""
+    stats = jax.local_devices()[0].memory_stats() or {}
+    return int(DEVICE_MEMORY_SHARE * stats["bytes_limit"]) if "bytes_limit" in stats else MEMORY_BUDGET
+
+
 def default_chunk_size(scene: Scene, n_paths: int) -> int:
-    """Paths per chunk so that one chunk's excitation work stays within ``MEMORY_BUDGET``."""
+    """Paths per chunk so that one chunk's excitation work stays within :func:`memory_budget`.
+
+    On a CPU that is 512 MiB (about 800 paths of the reference scene); on a GPU half its memory, as far
+    as 32-bit indexing allows: a GPU's time per step barely grows with the paths in a chunk, so large
+    chunks are what make it fast (``docs/speed.md``).
+    """
     grid = scene.spectral_grid()
     bytes_per_path = 4 * scene.float_dtype.itemsize * scene.n_sources * grid.n_fft
-    largest = max(1, min(n_paths, MEMORY_BUDGET // bytes_per_path))
+    largest = max(1, min(n_paths, memory_budget() // bytes_per_path, _largest_chunk(scene)))
     n_chunks = -(-n_paths // largest)
     return -(-n_paths // n_chunks)  # equal chunks: the least padding
 
@@ -237,7 +254,14 @@ def dpim_points(scene: Scene, n_points: int = 1000) -> PointSet:
 def _chunk(scene: Scene, n: int, chunk_size: int | None) -> int:
     if chunk_size is None:
         return default_chunk_size(scene, n)
-    return min(check_int("chunk_size", chunk_size, low=1), n)
+    chunk = min(check_int("chunk_size", chunk_size, low=1), n)
+    largest = _largest_chunk(scene)
+    if chunk > largest:  # larger chunks came back all NaN on a GPU
+        raise ValueError(
+            f"chunk_size={chunk_size} exceeds {largest} for this scene: one chunk's excitation would hold more "
+            "than 2**31 - 1 elements, beyond XLA's 32-bit indexing"
+        )
+    return chunk
 
 
 def dpim_inputs(scene: Scene, n_points: int = 1000, *, points: PointSet | None = None, chunk_size=None):

@@ -1,4 +1,4 @@
-"""``python -m jdpim.bench {accuracy,budget,speed} [--quick] [--out DIR]``: accuracy vs time, error budget, speed."""
+"""``python -m jdpim.bench {accuracy,budget,speed,throughput} ...``: accuracy, error budget, speed, throughput."""
 
 from __future__ import annotations
 
@@ -6,6 +6,13 @@ import argparse
 import dataclasses
 import pathlib
 import sys
+
+
+def _positive_int(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {text}")
+    return value
 
 
 def main(argv=None) -> int:
@@ -22,6 +29,16 @@ def main(argv=None) -> int:
     speed = sub.add_parser("speed", help="wall and compile times, split, memory, against a NumPy RK4 MCS")
     speed.add_argument("--quick", action="store_true", help="float32 only, MCS 1e4 only")
     speed.add_argument("--out", type=pathlib.Path, default=pathlib.Path("jdpim_out/bench"))
+    thr = sub.add_parser("throughput", help="path-steps per second against batch and chunk size, all devices")
+    thr.add_argument("--sizes", type=_positive_int, nargs="+", default=[1000, 10_000], help="numbers of paths")
+    thr.add_argument(
+        "--chunk-sizes", type=_positive_int, nargs="+", default=None, help="paths per chunk (default: memory rule)"
+    )
+    thr.add_argument("--methods", nargs="+", default=["dpim", "monte_carlo"], choices=["dpim", "monte_carlo"])
+    thr.add_argument("--dtype", default="float32", choices=["float32", "float64"])
+    thr.add_argument("--t-end", type=float, default=200.0, help="end time (s)")
+    thr.add_argument("--repeats", type=_positive_int, default=3, help="warm repeats (median)")
+    thr.add_argument("--out", type=pathlib.Path, default=pathlib.Path("jdpim_out/bench"))
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
     if args.command == "accuracy":
         from .accuracy import QUICK, Sweep, sweep, write
@@ -43,6 +60,19 @@ def main(argv=None) -> int:
         from .speed import run_speed
 
         files = run_speed(args.out, quick=args.quick, log=lambda s: print(s, flush=True))
+    elif args.command == "throughput":
+        from .throughput import run_throughput
+
+        files = run_throughput(
+            args.out,
+            sizes=args.sizes,
+            chunk_sizes=args.chunk_sizes or [None],
+            methods=args.methods,
+            dtype=args.dtype,
+            t_end=args.t_end,
+            repeats=args.repeats,
+            log=lambda s: print(s, flush=True),
+        )
     else:
         from .budget import run_budget
 

@@ -1,0 +1,114 @@
+"""Throughput on the visible devices: path-steps per second of the reference scene against batch size.
+
+``python -m jdpim.bench throughput --sizes 1000 100000 --chunk-sizes 4096 65536``: for each method, number
+of paths ``n`` and chunk size, the paths go through :func:`jdpim._pipelines.run_paths` (sharded over every
+local device, streamed in blocks), exactly as ``jdpim.dpim`` / ``jdpim.monte_carlo`` run them. Protocol:
+the first call (compilation included) is timed apart, then ``repeats`` warm calls, median. Input
+preparation (point selection, keys) is outside the clock. Peak device memory is the allocator's
+high-water mark where the backend reports one (GPUs), else the process's resident high-water mark.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import pathlib
+import platform
+import resource
+import statistics
+import time
+
+import jax
+import numpy as np
+
+from .._pipelines import dpim_inputs, monte_carlo_inputs, run_paths
+from .accuracy import paper_scene
+
+
+def _peak_mib() -> float:
+    stats = jax.local_devices()[0].memory_stats() or {}
+    if "peak_bytes_in_use" in stats:
+        return stats["peak_bytes_in_use"] / 2**20
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def measure(scene, method: str, n: int, chunk_size: int, repeats: int) -> dict:
+    """One row: first-call and warm median wall times (s) of ``n`` paths in chunks of ``chunk_size``."""
+    if method == "dpim":
+        rows, _, chunk = dpim_inputs(scene, n, chunk_size=chunk_size)
+    else:
+        rows, _, chunk = monte_carlo_inputs(scene, n, chunk_size=chunk_size)
+
+    def call():
+        return jax.block_until_ready(run_paths(scene, rows, kind=method, chunk_size=chunk, progress=False))
+
+    t0 = time.perf_counter()
+    states = call()
+    first_s = time.perf_counter() - t0
+    runs = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        states = call()
+        runs.append(time.perf_counter() - t0)
+    median = statistics.median(runs)
+    finite = np.isfinite(np.asarray(states)).all(axis=(1, 2))
+    return {
+        "method": method,
+        "n_paths": n,
+        "chunk_size": chunk,
+        "first_call_s": round(first_s, 3),
+        "median_s": round(median, 4),
+        "repeats": repeats,
+        "path_steps_per_s": float(f"{n * scene.n_steps / median:.3g}"),
+        "n_nonfinite": int(n - finite.sum()),
+        "peak_mib": round(_peak_mib()),
+    }
+
+
+def run_throughput(
+    out: pathlib.Path,
+    *,
+    sizes=(1000, 10_000),
+    chunk_sizes=(None,),
+    methods=("dpim", "monte_carlo"),
+    dtype: str = "float32",
+    t_end: float = 200.0,
+    dt: float = 0.01,
+    repeats: int = 3,
+    log=print,
+) -> list[str]:
+    """Run the throughput table; writes ``throughput.json`` and ``throughput.md`` under ``out``."""
+    if dtype == "float64":
+        jax.config.update("jax_enable_x64", True)
+    scene = paper_scene(t_end, dt, dtype=dtype)
+    rows = []
+    for method in methods:
+        for n in sizes:
+            for chunk in chunk_sizes:
+                if chunk is not None and chunk > n:
+                    continue
+                log(f"[throughput] {method} n={n} chunk={chunk or 'default'} ...")
+                rows.append({"dtype": dtype, **measure(scene, method, n, chunk, repeats)})
+                log(f"[throughput]   {rows[-1]}")
+    devices = jax.local_devices()
+    info = {
+        "scene": {"alpha": 0.03, "gamma": 0.03, "r": 0.98, "D": 0.03, "t_end": t_end, "dt": dt},
+        "rows": rows,
+        "machine": {
+            "platform": platform.platform(),
+            "backend": jax.default_backend(),
+            "devices": [d.device_kind for d in devices],
+            "jax": jax.__version__,
+        },
+        "load_average": [round(x, 2) for x in os.getloadavg()],
+    }
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "throughput.json").write_text(json.dumps(info, indent=1) + "\n")
+    cols = list(rows[0]) if rows else []
+    lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+    lines += ["| " + " | ".join(str(r[c]) for c in cols) + " |" for r in rows]
+    lines.append(f"\n{len(devices)} x {devices[0].device_kind} ({jax.default_backend()}), jax {jax.__version__}.")
+    lines.append(f"Load average (1, 5, 15 min) at the end: {info['load_average']}.")
+    (out / "throughput.md").write_text("\n".join(lines) + "\n")
+    log("\n".join(lines))
+    return ["throughput.json", "throughput.md"]
