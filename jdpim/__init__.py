@@ -26,6 +26,8 @@ from ._pipelines import simulate as simulate
 from ._points import PointSet as PointSet
 from ._points import gf_discrepancy as gf_discrepancy
 from ._points import select_points as select_points
+from ._replicates import dpim_replicates as dpim_replicates
+from ._replicates import randomised_points as randomised_points
 from ._result import Result as Result
 from ._scene import Scene as Scene
 from ._sensitivity import parameter_names as parameter_names
