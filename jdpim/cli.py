@@ -272,7 +272,10 @@ def main(argv=None) -> int:
     p = parser()
     if not argv or argv[0] not in ("paper", "run", "-h", "--help"):
         argv = ["run", *argv]  # `python -m jdpim` alone is the main job, as before
-    args = p.parse_args(argv)
+    try:
+        args = p.parse_args(argv)
+    except SystemExit as exit_:  # argparse: --help (0) or a bad value (2, one line already printed)
+        return int(exit_.code or 0)
     from jdpim._scenefile import SceneFileError
 
     try:

@@ -15,7 +15,7 @@ standard deviations of randomised replicates (``jdpim.dpim_replicates``).
 Example (tiny settings):
     >>> import jdpim.paper
     >>> jdpim.paper.QUICK.label()
-    'QUICK settings: DPIM 1000 points, MCS 10000 samples, t_end = 200 s, dt = 0.01 s, 2 DPIM replicates'
+    'QUICK settings: DPIM 1000 points, MCS 10000 samples, t_end = 200 s, dt = 0.01 s, 4 DPIM replicates'
 """
 
 from __future__ import annotations
@@ -67,7 +67,7 @@ class Settings:
 
 
 FULL = Settings()
-QUICK = Settings(name="quick", n_samples=10_000, replicates=2)
+QUICK = Settings(name="quick", n_samples=10_000)
 
 
 def scene(D: float, settings: Settings) -> Scene:
