@@ -49,12 +49,10 @@ def dpim_replicates(scene, n_points: int = 1000, n_replicates: int = 4, *, seed:
 
     The spread of their densities is the error of one run: ``np.std(pdfs, axis=0, ddof=1)``.
 
-    Example:
-        >>> import jdpim, numpy as np
-        >>> scene = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=1.0, dt=0.05)
-        >>> runs = jdpim.dpim_replicates(scene, 16, 2)
-        >>> np.std([r.pdf("v", [0.0, 0.1], 1.0) for r in runs], axis=0, ddof=1).shape
-        (2,)
+    Example (``notebooks/quickstart.ipynb`` runs it)::
+
+        runs = jdpim.dpim_replicates(scene, 1000, 4)
+        sd = np.std([r.pdf("x", grid, t) for r in runs], axis=0, ddof=1)  # the error of one run, on grid
     """
     from ._pipelines import dpim
 

@@ -76,14 +76,13 @@ class Result:
         Returns:
             array shaped like ``grid``.
 
-        Example (a one-point grid, differentiable in the noise level):
-            >>> import jax, jax.numpy as jnp, jdpim
-            >>> scene = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=1.0, dt=0.05)
-            >>> pts = jdpim.dpim_points(scene, 16)
-            >>> f = lambda D: jdpim.dpim(scene.replace(noise=jdpim.WhiteNoise(D=D)), points=pts).pdf(
-            ...     "x", jnp.array([0.1]), 1.0)[0]
-            >>> bool(jnp.isfinite(jax.grad(f)(0.03)))
-            True
+        A one-point grid gives a scalar functional that ``jax.grad`` differentiates through the pipeline
+        (``tests/test_cli.py`` checks it against central differences)::
+
+            pts = jdpim.dpim_points(scene, 64)
+            f = lambda D: jdpim.dpim(scene.replace(noise=jdpim.WhiteNoise(D=D)), points=pts).pdf(
+                "x", jnp.array([0.5]), t)[0]
+            jax.grad(f)(0.03)
         """
         check_points("grid", grid)
         y = self.samples(var, t)

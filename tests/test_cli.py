@@ -5,6 +5,7 @@ import json
 import pathlib
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -178,3 +179,31 @@ def test_no_stray_public_names():
     assert not hasattr(jdpim, "PackageNotFoundError")
     with pytest.raises(ValueError, match=r"got \[20\.0\]$"):
         jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=10.0, save_at=np.array([20.0]))
+
+
+def test_one_point_pdf_is_differentiable():
+    """``jax.grad`` of a one-point density through ``Result.pdf`` (states scaled by a parameter) against FD."""
+    base = np.linspace(0.05, 2.0, 40)
+
+    def p_at(s):
+        states = jnp.stack([s * base, -s * base], -1)[:, None]
+        res = jdpim.Result(
+            times=np.array([1.0]), states=states, weights=jnp.full(40, 1 / 40), barrier=0.0, method="dpim"
+        )
+        return res.pdf("x", jnp.array([0.5]), 1.0)[0]
+
+    fd = (p_at(1.001) - p_at(0.999)) / 0.002
+    assert float(jax.grad(p_at)(1.0)) == pytest.approx(float(fd), rel=1e-2)
+
+
+@pytest.mark.slow
+def test_grad_of_one_point_dpim_density_in_D():
+    """The issue's example: ``jax.grad`` of a DPIM density at one point with respect to D, against FD."""
+    scene = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=2.0, dt=0.02, x0=0.3)
+    pts = jdpim.dpim_points(scene, 64)
+
+    def p_at(D):
+        return jdpim.dpim(scene.replace(noise=jdpim.WhiteNoise(D=D)), points=pts).pdf("x", jnp.array([0.3]), 2.0)[0]
+
+    fd = (p_at(0.0303) - p_at(0.0297)) / 0.0006
+    assert float(jax.grad(p_at)(0.03)) == pytest.approx(float(fd), rel=2e-2)
