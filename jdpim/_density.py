@@ -115,8 +115,13 @@ def kde(samples, weights, grid, sigma, barrier=None):
         barrier: reflect the kernel at this position (density zero below it), or ``None``.
     """
     _check_kernel("grid", grid, sigma, barrier)
+    return _kde(jnp.asarray(samples), jnp.asarray(weights), jnp.asarray(grid), sigma, barrier)
+
+
+@jax.jit
+def _kde(samples, weights, grid, sigma, barrier):
     samples, weights = _clean(samples, weights)
-    g = jnp.asarray(grid, samples.dtype)
+    g = grid.astype(samples.dtype)
     flat = jnp.atleast_1d(g)
 
     def body(acc, chunk):
@@ -143,9 +148,14 @@ def kde_stderr(samples, weights, grid, sigma, barrier=None):
         ()
     """
     _check_kernel("grid", grid, sigma, barrier)
+    return _kde_stderr(jnp.asarray(samples), jnp.asarray(weights), jnp.asarray(grid), sigma, barrier)
+
+
+@jax.jit
+def _kde_stderr(samples, weights, grid, sigma, barrier):
     n = jnp.sum(jnp.isfinite(samples))
     samples, weights = _clean(samples, weights)
-    g = jnp.asarray(grid, samples.dtype)
+    g = grid.astype(samples.dtype)
     flat = jnp.atleast_1d(g)
 
     def body(acc, chunk):
@@ -167,6 +177,12 @@ def kde_2d(x, v, weights, x_grid, v_grid, sigma_x, sigma_v, barrier=None):
     """
     _check_kernel("x_grid", x_grid, sigma_x, barrier)
     _check_kernel("v_grid", v_grid, sigma_v, None)
+    args = (jnp.asarray(x), jnp.asarray(v), jnp.asarray(weights), jnp.asarray(x_grid), jnp.asarray(v_grid))
+    return _kde_2d(*args, sigma_x, sigma_v, barrier)
+
+
+@jax.jit
+def _kde_2d(x, v, weights, x_grid, v_grid, sigma_x, sigma_v, barrier):
     ok = jnp.isfinite(x) & jnp.isfinite(v)
     x, v, weights = jnp.where(ok, x, 0.0), jnp.where(ok, v, 0.0), jnp.where(ok, weights, 0.0)
     shape = jnp.shape(x_grid) + jnp.shape(v_grid)

@@ -22,6 +22,7 @@ programme is compiled once: only the points change between replicates.
 
 from __future__ import annotations
 
+import functools
 import warnings
 
 import numpy as np
@@ -36,6 +37,8 @@ def randomised_points(distributions: tuple, n_points: int, seed: int, *, n_refer
     """A GF-discrepancy point set from an Owen-scrambled Sobol base set (``seed``), selected as usual, with
     its angle coordinates rotated by a random shift modulo ``2 pi`` (module docstring).
 
+    Results are cached.
+
     Example:
         >>> import jdpim
         >>> ps = jdpim.randomised_points((jdpim.Uniform(), jdpim.Uniform()), 32, seed=1)
@@ -44,9 +47,13 @@ def randomised_points(distributions: tuple, n_points: int, seed: int, *, n_refer
     """
     n_points = check_int("n_points", n_points, low=2)
     seed = check_int("seed", seed, low=0)
-    distributions = tuple(distributions)
     if n_reference is None:
         n_reference = 2 ** int(np.clip(np.ceil(np.log2(1000 * n_points)), 18, 23))
+    return _randomised_points(tuple(distributions), n_points, seed, check_int("n_reference", n_reference, low=2))
+
+
+@functools.lru_cache(maxsize=64)
+def _randomised_points(distributions, n_points, seed, n_reference) -> PointSet:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)  # Sobol balance warning for n not a power of 2
         u = qmc.Sobol(len(distributions), scramble=True, seed=seed).random(n_points)
