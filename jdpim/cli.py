@@ -251,8 +251,18 @@ def _paper(args) -> dict:
     return paper.reproduce(settings, args.out, pdf=args.pdf, log=log, progress=not args.quiet)
 
 
+def _version() -> str:
+    import importlib.metadata
+
+    try:
+        return importlib.metadata.version("jdpim")
+    except importlib.metadata.PackageNotFoundError:
+        return "0.0.0 (source tree)"
+
+
 def parser() -> argparse.ArgumentParser:
     p = _Parser(prog="jdpim", description=__doc__, formatter_class=_Formatter)
+    p.add_argument("--version", action="version", version=f"jdpim {_version()}", help="show the version and exit")
     sub = p.add_subparsers(dest="command", parser_class=_Parser, metavar="{paper,run,bench}")
     _paper_parser(sub)
     _run_parser(sub)
@@ -270,7 +280,7 @@ def main(argv=None) -> int:
 
         return bench_main(argv[1:])
     p = parser()
-    if not argv or argv[0] not in ("paper", "run", "-h", "--help"):
+    if not argv or argv[0] not in ("paper", "run", "-h", "--help", "--version"):
         argv = ["run", *argv]  # `python -m jdpim` alone is the main job, as before
     try:
         args = p.parse_args(argv)
