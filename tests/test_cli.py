@@ -210,3 +210,17 @@ def test_grad_of_one_point_dpim_density_in_D():
 
     fd = (p_at(0.0301) - p_at(0.0299)) / 0.0002  # converged: h = 3e-4 is not (impacts near grazing)
     assert float(jax.grad(p_at)(0.03)) == pytest.approx(float(fd), rel=1e-2)
+
+
+def test_paper_command_passes_its_settings(monkeypatch, tmp_path):
+    """``jdpim paper --quick --samples N --pdf --quiet`` reaches ``jdpim.paper.reproduce`` with those settings."""
+    from jdpim import paper
+
+    seen = {}
+    monkeypatch.setattr(paper, "reproduce", lambda settings, out, **kw: seen.update(settings=settings, out=out, **kw))
+    assert cli.main(["paper", "--quick", "--samples", "2000", "--pdf", "--quiet", "--out", str(tmp_path)]) == 0
+    s = seen["settings"]
+    assert (s.name, s.n_samples, s.n_points, s.noise_levels) == ("quick", 2000, 1000, (0.01, 0.03, 0.08))
+    assert seen["pdf"] is True and seen["progress"] is False and seen["out"] == tmp_path
+    assert s.label().startswith("QUICK settings: DPIM 1000 points, MCS 2000 samples")
+    assert paper.FULL.n_samples == 100_000 and paper.FULL.n_points == 1000  # the paper's sizes
