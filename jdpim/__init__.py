@@ -1,13 +1,14 @@
 """jdpim: response PDFs of randomly excited vibro-impact oscillators by the Direct Probability
 Integral Method (DPIM), with Monte Carlo simulation and exact solutions beside it, in JAX."""
 
-from importlib.metadata import PackageNotFoundError, version
+import importlib.metadata as _metadata
 
 from ._density import RULES as RULES
 from ._density import bandwidth as bandwidth
 from ._density import histogram as histogram
 from ._density import kde as kde
 from ._density import kde_2d as kde_2d
+from ._density import kde_stderr as kde_stderr
 from ._distributions import Normal as Normal
 from ._distributions import Uniform as Uniform
 from ._excitation import SpectralRepresentation as SpectralRepresentation
@@ -25,6 +26,8 @@ from ._pipelines import simulate as simulate
 from ._points import PointSet as PointSet
 from ._points import gf_discrepancy as gf_discrepancy
 from ._points import select_points as select_points
+from ._replicates import dpim_replicates as dpim_replicates
+from ._replicates import randomised_points as randomised_points
 from ._result import Result as Result
 from ._scene import Scene as Scene
 from ._sensitivity import parameter_names as parameter_names
@@ -36,6 +39,6 @@ from ._tuning import soft_voronoi_probabilities as soft_voronoi_probabilities
 from ._tuning import tune_bandwidth as tune_bandwidth
 
 try:
-    __version__ = version("jdpim")
-except PackageNotFoundError:  # running from a source tree without installation
+    __version__ = _metadata.version("jdpim")
+except _metadata.PackageNotFoundError:  # running from a source tree without installation
     __version__ = "0.0.0"

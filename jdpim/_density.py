@@ -15,7 +15,7 @@ import math
 import jax
 import jax.numpy as jnp
 
-from ._pytree import check_grid, check_real
+from ._pytree import check_grid, check_points, check_real
 
 RULES = ("chen", "silverman", "scott")
 CHEN_C = 1.25  # constant c of Chen & Yang's rule; L1 errors vs exact solutions were lowest for c = 1-1.5 (README)
@@ -77,7 +77,7 @@ def bandwidth(samples, weights, rule: str = "chen", *, dim: int = 1, c: float | 
 
 def _check_kernel(grid_name, grid, sigma, barrier):
     """Validate concrete kernel arguments (tracers pass through)."""
-    check_grid(grid_name, grid)
+    check_points(grid_name, grid)
     check_real("bandwidth", sigma, low=0.0, low_open=True)
     if barrier is not None:
         check_real("barrier", barrier)
@@ -106,34 +106,88 @@ def _chunks(*arrays, size=_POINT_CHUNK):
 
 
 def kde(samples, weights, grid, sigma, barrier=None):
-    """Weighted 1-D Gaussian KDE on ``grid``; shape like ``grid`` (1-D).
+    """Weighted 1-D Gaussian KDE on ``grid``; shaped like ``grid`` (a scalar, or 1-D with one point or more).
 
     Args:
         samples, weights: shape ``(N,)``.
-        grid: evaluation points, shape ``(G,)``.
+        grid: evaluation points: a scalar, or shape ``(G,)``, strictly increasing.
         sigma: kernel standard deviation (> 0).
         barrier: reflect the kernel at this position (density zero below it), or ``None``.
     """
     _check_kernel("grid", grid, sigma, barrier)
+    return _kde(jnp.asarray(samples), jnp.asarray(weights), jnp.asarray(grid), sigma, barrier)
+
+
+@jax.jit
+def _kde(samples, weights, grid, sigma, barrier):
     samples, weights = _clean(samples, weights)
-    grid = jnp.asarray(grid, samples.dtype)
+    g = grid.astype(samples.dtype)
+    flat = jnp.atleast_1d(g)
 
     def body(acc, chunk):
         s, w = chunk
-        return acc + _kernel_matrix(grid, s, sigma, barrier) @ w, None
+        return acc + _kernel_matrix(flat, s, sigma, barrier) @ w, None
 
-    out, _ = jax.lax.scan(body, jnp.zeros(grid.shape, samples.dtype), _chunks(samples, weights))
-    return out
+    out, _ = jax.lax.scan(body, jnp.zeros(flat.shape, samples.dtype), _chunks(samples, weights))
+    return out.reshape(g.shape)
+
+
+def kde_stderr(samples, weights, grid, sigma, barrier=None):
+    r"""Sampling standard error of :func:`kde` for independent samples, from the per-path kernel contributions.
+
+    With ``p(y) = sum_q w_q K_q(y)`` and independent paths,
+    ``se(y)^2 = n / (n - 1) * sum_q w_q^2 (K_q(y) - p(y))^2`` (``n`` paths with finite states); for equal
+    weights ``1/n`` this is the sample variance of ``K_q(y)`` over ``n``. The bandwidth is held fixed (the
+    error of the smoothed density; the smoothing bias is not included). Shaped like ``grid``.
+
+    Example:
+        >>> import jdpim, jax.numpy as jnp
+        >>> y = jnp.linspace(-2.0, 2.0, 101)
+        >>> se = jdpim.kde_stderr(y, jnp.full(101, 1 / 101), 0.0, 0.5)
+        >>> se.shape
+        ()
+    """
+    _check_kernel("grid", grid, sigma, barrier)
+    return _kde_stderr(jnp.asarray(samples), jnp.asarray(weights), jnp.asarray(grid), sigma, barrier)
+
+
+@jax.jit
+def _kde_stderr(samples, weights, grid, sigma, barrier):
+    n = jnp.sum(jnp.isfinite(samples))
+    samples, weights = _clean(samples, weights)
+    g = grid.astype(samples.dtype)
+    flat = jnp.atleast_1d(g)
+
+    def body(acc, chunk):
+        s, w = chunk
+        k = _kernel_matrix(flat, s, sigma, barrier)
+        w2 = w * w
+        return (acc[0] + k @ w, acc[1] + (k * k) @ w2, acc[2] + k @ w2, acc[3] + jnp.sum(w2)), None
+
+    zero = jnp.zeros(flat.shape, samples.dtype)
+    (p, s_kk, s_k, s_1), _ = jax.lax.scan(body, (zero, zero, zero, zero[0]), _chunks(samples, weights))
+    var = (s_kk - 2 * p * s_k + p * p * s_1) * n / jnp.maximum(n - 1, 1)
+    return jnp.sqrt(jnp.maximum(var, 0.0)).reshape(g.shape)
 
 
 def kde_2d(x, v, weights, x_grid, v_grid, sigma_x, sigma_v, barrier=None):
-    """Weighted product-Gaussian KDE of ``(x, v)``; shape ``(len(x_grid), len(v_grid))``; reflected in ``x``."""
+    """Weighted product-Gaussian KDE of ``(x, v)``, reflected in ``x``; shape ``(len(x_grid), len(v_grid))``.
+
+    A scalar grid drops its axis (both scalars: a scalar).
+    """
     _check_kernel("x_grid", x_grid, sigma_x, barrier)
     _check_kernel("v_grid", v_grid, sigma_v, None)
+    args = (jnp.asarray(x), jnp.asarray(v), jnp.asarray(weights), jnp.asarray(x_grid), jnp.asarray(v_grid))
+    return _kde_2d(*args, sigma_x, sigma_v, barrier)
+
+
+@jax.jit
+def _kde_2d(x, v, weights, x_grid, v_grid, sigma_x, sigma_v, barrier):
     ok = jnp.isfinite(x) & jnp.isfinite(v)
     x, v, weights = jnp.where(ok, x, 0.0), jnp.where(ok, v, 0.0), jnp.where(ok, weights, 0.0)
-    x_grid = jnp.asarray(x_grid, x.dtype)
-    v_grid = jnp.asarray(v_grid, x.dtype)
+    shape = jnp.shape(x_grid) + jnp.shape(v_grid)
+    x_grid = jnp.atleast_1d(jnp.asarray(x_grid, x.dtype))
+    v_grid = jnp.atleast_1d(jnp.asarray(v_grid, x.dtype))
 
     def body(acc, chunk):
         xs, vs, w = chunk
@@ -143,7 +197,7 @@ def kde_2d(x, v, weights, x_grid, v_grid, sigma_x, sigma_v, barrier=None):
 
     init = jnp.zeros((x_grid.shape[0], v_grid.shape[0]), x.dtype)
     out, _ = jax.lax.scan(body, init, _chunks(x, v, weights))
-    return out
+    return out.reshape(shape)
 
 
 def histogram(samples, weights, edges):

@@ -43,6 +43,14 @@ def concrete(value: Any) -> np.ndarray | None:
     return None
 
 
+def plain(value: Any) -> Any:
+    """``value`` for an error message: NumPy and JAX arrays as plain numbers or lists (no ``array(...)``)."""
+    arr = concrete(value)
+    if arr is None or isinstance(value, (numbers.Number, list, tuple)) and not isinstance(value, np.generic):
+        return value
+    return arr.tolist()
+
+
 def check_real(
     name: str,
     value: Any,
@@ -61,16 +69,16 @@ def check_real(
     if arr is None:
         return
     if not np.issubdtype(arr.dtype, np.number) or np.iscomplexobj(arr):
-        raise TypeError(f"{name} must be real-valued, got {value!r}")
+        raise TypeError(f"{name} must be real-valued, got {plain(value)!r}")
     if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name} must be finite, got {value!r}")
+        raise ValueError(f"{name} must be finite, got {plain(value)!r}")
     lo_txt = "-inf" if low is None else f"{low:g}"
     hi_txt = "inf" if high is None else f"{high:g}"
     rng = f"{'(' if low_open or low is None else '['}{lo_txt}, {hi_txt}{')' if high_open or high is None else ']'}"
     bad_low = low is not None and (np.any(arr <= low) if low_open else np.any(arr < low))
     bad_high = high is not None and (np.any(arr >= high) if high_open else np.any(arr > high))
     if bad_low or bad_high:
-        raise ValueError(f"{name} must lie in {rng}, got {value!r}")
+        raise ValueError(f"{name} must lie in {rng}, got {plain(value)!r}")
 
 
 def check_int(name: str, value: Any, *, low: int) -> int:
@@ -92,5 +100,23 @@ def check_grid(name: str, grid: Any) -> np.ndarray | None:
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"{name} must be finite")
     if not np.all(np.diff(arr) > 0):
+        raise ValueError(f"{name} must be strictly increasing")
+    return arr
+
+
+def check_points(name: str, points: Any) -> np.ndarray | None:
+    """Check evaluation points: a scalar or a non-empty 1-D array, finite and strictly increasing.
+
+    Returns them as an array if concrete. Unlike :func:`check_grid`, one point (or a scalar) is allowed,
+    so that a density can be evaluated, and differentiated, at a single value.
+    """
+    arr = concrete(points)
+    if arr is None:
+        return None
+    if arr.ndim > 1 or arr.size < 1:
+        raise ValueError(f"{name} must be a scalar or a non-empty 1-D array, got shape {list(arr.shape)}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} must be finite")
+    if arr.ndim == 1 and not np.all(np.diff(arr) > 0):
         raise ValueError(f"{name} must be strictly increasing")
     return arr

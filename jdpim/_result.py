@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _density
-from ._pytree import check_grid, check_real, concrete, pytree_dataclass, static_field
+from ._pytree import check_grid, check_points, check_real, concrete, plain, pytree_dataclass, static_field
 from ._scene import saved_index
 
 VARIABLES = ("x", "v")
@@ -68,33 +68,61 @@ class Result:
 
         Args:
             var: ``"x"`` (displacement) or ``"v"`` (velocity).
-            grid: evaluation points, 1-D, strictly increasing.
+            grid: evaluation points: a scalar or 1-D (one point or more), strictly increasing.
             t: a saved time, s.
             bandwidth: kernel standard deviation (> 0), or ``None`` to use ``rule``.
             rule: bandwidth rule, one of ``"chen"``, ``"silverman"``, ``"scott"``.
 
         Returns:
             array shaped like ``grid``.
+
+        A one-point grid gives a scalar functional that ``jax.grad`` differentiates through the pipeline
+        (``tests/test_cli.py`` checks it against central differences)::
+
+            pts = jdpim.dpim_points(scene, 64)
+            f = lambda D: jdpim.dpim(scene.replace(noise=jdpim.WhiteNoise(D=D)), points=pts).pdf(
+                "x", jnp.array([0.5]), t)[0]
+            jax.grad(f)(0.03)
         """
-        check_grid("grid", grid)
+        check_points("grid", grid)
         y = self.samples(var, t)
         sigma = self._sigma(bandwidth, lambda: _density.bandwidth(y, self.weights, rule, dim=1))
         return _density.kde(y, self.weights, jnp.asarray(grid), sigma, self.barrier if var == "x" else None)
 
+    def pdf_stderr(self, var: str, grid, t: float, *, bandwidth=None, rule: str = "chen"):
+        r"""Sampling standard error of :meth:`pdf` (same arguments), Monte Carlo results only.
+
+        From the per-path kernel contributions ``K_q(y)``: ``se(y)^2 = sum_q K_q(y)^2 / n^2 - p(y)^2 / n``
+        up to the factor ``n / (n - 1)`` (see ``jdpim.kde_stderr``), at the same bandwidth as ``pdf``.
+        DPIM points are not independent samples: their error comes from randomised point sets
+        (``jdpim.dpim_replicates``).
+        """
+        if self.method != "monte_carlo":
+            raise ValueError(
+                f"pdf_stderr needs independent samples (method 'monte_carlo'), got method {self.method!r}; "
+                "for DPIM use jdpim.dpim_replicates"
+            )
+        check_points("grid", grid)
+        y = self.samples(var, t)
+        sigma = self._sigma(bandwidth, lambda: _density.bandwidth(y, self.weights, rule, dim=1))
+        return _density.kde_stderr(y, self.weights, jnp.asarray(grid), sigma, self.barrier if var == "x" else None)
+
     def joint_pdf(self, x_grid, v_grid, t: float, *, bandwidth=None, rule: str = "chen"):
         """Joint PDF of ``(x, v)`` at saved time ``t``; shape ``(len(x_grid), len(v_grid))``.
 
+        A scalar grid drops its axis.
+
         ``bandwidth`` is ``None`` (rule-based, 2-D exponent) or a pair ``(sigma_x, sigma_v)``.
         """
-        check_grid("x_grid", x_grid)
-        check_grid("v_grid", v_grid)
+        check_points("x_grid", x_grid)
+        check_points("v_grid", v_grid)
         x, v = self.samples("x", t), self.samples("v", t)
         if bandwidth is None:
             sx = _density.bandwidth(x, self.weights, rule, dim=2)
             sv = _density.bandwidth(v, self.weights, rule, dim=2)
         else:
             if np.ndim(bandwidth) != 1 or len(bandwidth) != 2:
-                raise ValueError(f"bandwidth must be None or a pair (sigma_x, sigma_v), got {bandwidth!r}")
+                raise ValueError(f"bandwidth must be None or a pair (sigma_x, sigma_v), got {plain(bandwidth)!r}")
             sx, sv = (self._sigma(b, None) for b in bandwidth)
         return _density.kde_2d(x, v, self.weights, jnp.asarray(x_grid), jnp.asarray(v_grid), sx, sv, self.barrier)
 

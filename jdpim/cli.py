@@ -1,5 +1,12 @@
-"""Command line: ``jdpim run`` (the main job: reference scene by DPIM and MCS, figures and a timing table)
-and ``jdpim bench`` (accuracy-versus-time benchmarks, see ``jdpim.bench``)."""
+"""The ``jdpim`` command line.
+
+* ``jdpim paper [--quick]``: the seed paper's Figures 2-4 and Table 1 on this machine (see ``jdpim.paper``).
+* ``jdpim run [scene.toml]``: a scene file's methods and outputs, or, without a file, the main job (the
+  reference scene by DPIM and MCS: figures, a timing table and distances to the reference density).
+* ``jdpim bench ...``: accuracy-versus-time, error-budget and speed benchmarks (``jdpim bench -h``).
+
+A bad value is rejected in one line with exit status 2; ``--traceback`` shows the Python traceback.
+"""
 
 from __future__ import annotations
 
@@ -14,19 +21,100 @@ import numpy as np
 PAPER_TABLE_1 = "paper's Table 1 (its own hardware, 1000 points vs 1e5 samples): DPIM 24.5-31.9 s, MCS 2.0e3-1.4e4 s"
 
 
+class UsageError(Exception):
+    """A user error found after parsing (one line, exit status 2)."""
+
+
+def _number(kind, low=None, high=None, *, low_open=False, what=""):
+    """An argparse type: a ``kind`` number in the stated range (the message states the range)."""
+
+    def parse(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not {'an integer' if kind is int else 'a number'}") from None
+        if kind is float and not math.isfinite(value):
+            raise argparse.ArgumentTypeError(f"must be finite, got {text}")
+        too_low = low is not None and (value <= low if low_open else value < low)
+        if kind is int and too_low:
+            raise argparse.ArgumentTypeError(f"must be an integer >= {low}, got {text}")
+        if too_low or (high is not None and value > high):
+            lo = "-inf" if low is None else f"{low:g}"
+            hi = "inf" if high is None else f"{high:g}"
+            rng = f"{'(' if low_open else '['}{lo}, {hi}{']' if high is not None else ')'}"
+            raise argparse.ArgumentTypeError(f"must lie in {rng}{what}, got {text}")
+        return value
+
+    return parse
+
+
+POSITIVE = _number(float, 0.0, low_open=True)
+NON_NEGATIVE = _number(float, 0.0)
+FRACTION = _number(float, 0.0, 1.0)
+
+
+def _count(low: int):
+    return _number(int, low)
+
+
+class _Formatter(argparse.ArgumentDefaultsHelpFormatter, argparse.RawDescriptionHelpFormatter):
+    pass
+
+
+class _Parser(argparse.ArgumentParser):
+    """``ArgumentParser`` whose errors are one line: ``jdpim run: error: argument --r: must lie in [0, 1], got 1.5``."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def _common(p) -> None:
+    p.add_argument("--out", type=pathlib.Path, default=pathlib.Path("jdpim_out"), help="output folder")
+    p.add_argument("--quiet", action="store_true", help="no progress lines (results and file names only)")
+    p.add_argument("--traceback", action="store_true", help="show Python tracebacks of errors (for bug reports)")
+
+
 def _run_parser(sub) -> None:
-    p = sub.add_parser("run", help="reference scene by DPIM and Monte Carlo: PDFs, figures, timing table")
-    p.add_argument("--D", type=float, default=0.03, help="noise intensity (default 0.03)")
-    p.add_argument("--alpha", type=float, default=0.03)
-    p.add_argument("--gamma", type=float, default=0.03)
-    p.add_argument("--r", type=float, default=0.98)
-    p.add_argument("--points", type=int, default=1000, help="DPIM representative points (default 1000)")
-    p.add_argument("--samples", type=int, default=10_000, help="Monte Carlo samples (default 10000)")
-    p.add_argument("--t-end", type=float, default=200.0)
-    p.add_argument("--dt", type=float, default=0.01)
-    p.add_argument("--save-at", type=float, nargs="+", default=[10.0, 50.0, 200.0])
-    p.add_argument("--repeats", type=int, default=3, help="timed DPIM repeats (MCS is timed once)")
-    p.add_argument("--out", type=pathlib.Path, default=pathlib.Path("jdpim_out"))
+    p = sub.add_parser(
+        "run",
+        help="a scene file, or the reference scene by DPIM and MCS: PDFs, figures, timing table",
+        description="Run a TOML scene file (`jdpim run scene.toml`, see docs/scene_files.md), or, without one, the "
+        "main job: the reference scene by DPIM and Monte Carlo, with figures, a timing table and distances to the "
+        "reference density. The options below set the main job's scene; a scene file carries its own.",
+        formatter_class=_Formatter,
+    )
+    p.add_argument("scene_file", nargs="?", type=pathlib.Path, default=None, help="TOML scene file (optional)")
+    p.add_argument("--D", type=NON_NEGATIVE, default=0.03, help="noise intensity D, E[xi(t) xi(t+s)] = 2 D delta(s)")
+    p.add_argument("--alpha", type=NON_NEGATIVE, default=0.03, help="linear damping coefficient alpha")
+    p.add_argument("--gamma", type=NON_NEGATIVE, default=0.03, help="cubic damping coefficient gamma")
+    p.add_argument("--r", type=FRACTION, default=0.98, help="coefficient of restitution r")
+    p.add_argument("--points", type=_count(2), default=1000, help="DPIM representative points")
+    p.add_argument("--samples", type=_count(2), default=10_000, help="Monte Carlo samples")
+    p.add_argument("--t-end", type=POSITIVE, default=200.0, help="end time in s (a whole number of steps dt)")
+    p.add_argument("--dt", type=POSITIVE, default=0.01, help="RK4 time step in s")
+    p.add_argument(
+        "--save-at", type=NON_NEGATIVE, nargs="+", default=[10.0, 50.0, 200.0], help="saved times in s (<= t_end)"
+    )
+    p.add_argument("--repeats", type=_count(1), default=3, help="timed DPIM repeats after a warm-up (MCS: one run)")
+    _common(p)
+
+
+def _paper_parser(sub) -> None:
+    p = sub.add_parser(
+        "paper",
+        help="the seed paper's Figures 2-4 and Table 1 on this machine",
+        description="Reproduce the seed paper's example (alpha = gamma = 0.03, r = 0.98): Figure 2 (marginals of x "
+        "and x' at D = 0.03, DPIM as lines, MCS as dots), Figure 3 (joint PDF, MCS beside DPIM), Figure 4 "
+        "(stationary marginals for D = 0.01, 0.03, 0.08) and Table 1 (times measured here), with a reference "
+        "density and each curve's distance to it. Writes PNG (PDF with --pdf), CSV, JSON and .npz.",
+        formatter_class=_Formatter,
+    )
+    p.add_argument("--quick", action="store_true", help="smaller settings (about 2 minutes on 2 cores), labelled")
+    p.add_argument("--pdf", action="store_true", help="also write the figures as PDF")
+    p.add_argument("--points", type=_count(2), default=None, help="DPIM points (default: 1000)")
+    p.add_argument("--samples", type=_count(2), default=None, help="MCS samples (default: 1e5; 1e4 with --quick)")
+    p.add_argument("--replicates", type=_count(0), default=None, help="randomised DPIM replicates for error bands")
+    _common(p)
 
 
 def run(args) -> dict:
@@ -35,27 +123,31 @@ def run(args) -> dict:
     from jdpim import exact, metrics
     from jdpim.bench import timed
 
+    if max(args.save_at) > args.t_end:
+        raise UsageError(f"--save-at times must lie in [0, --t-end={args.t_end:g}], got {max(args.save_at):g}")
+    log = (lambda s: None) if args.quiet else (lambda s: print(s, flush=True))
     model = jdpim.VibroImpactOscillator(alpha=args.alpha, gamma=args.gamma, r=args.r)
     scene = jdpim.Scene(
         model, noise=jdpim.WhiteNoise(D=args.D), t_end=args.t_end, dt=args.dt, save_at=tuple(args.save_at)
     )
     args.out.mkdir(parents=True, exist_ok=True)
-    print(
+    log(
         f"scene: alpha={args.alpha} gamma={args.gamma} r={args.r} D={args.D}, t in [0, {args.t_end}] s, "
-        f"dt={args.dt} s, w_u={scene.spectral_grid().cutoff:.3g} rad/s, K={scene.spectral_grid().n_terms}",
-        flush=True,
+        f"dt={args.dt} s, w_u={scene.spectral_grid().cutoff:.3g} rad/s, K={scene.spectral_grid().n_terms}"
     )
+    log(f"DPIM: {args.points} points, compile + warm-up + {args.repeats} timed runs ...")
     dp, t_dp = timed("dpim", scene, args.points, repeats=args.repeats)
+    log(f"MCS: {args.samples} samples, compile + one timed run ...")
     mc, t_mc = timed("monte_carlo", scene, args.samples, repeats=1, warmup=False)
     rows = [t_dp.row(), t_mc.row()]
     table = _timing_table(rows, scene.n_steps)
     print(table, flush=True)
-    print(PAPER_TABLE_1)
+    log(PAPER_TABLE_1)
+
+    from jdpim._scenerun import grids
 
     t_last = scene.save_at[-1]
-    spread = math.sqrt(max(float(mc.moment("x", 2, t)) for t in scene.save_at))
-    xg = np.linspace(0.0, 5.0 * spread, 301)
-    vg = np.linspace(-5.0 * spread, 5.0 * spread, 401)
+    xg, vg = grids((dp, mc), 0.0, 301)
     dist = {}
     for t in scene.save_at:
         for var, g in (("x", xg), ("v", vg)):
@@ -70,8 +162,15 @@ def run(args) -> dict:
     for k, v in dist.items():
         print(f"  {k}: {v:.4f}")
     figures = _figures(scene, dp, mc, xg, vg, ref_x, ref_v, args)
+    from jdpim._scenerun import versions
+
     summary = {
-        "scene": {k: (str(v) if isinstance(v, pathlib.Path) else v) for k, v in vars(args).items() if k != "func"},
+        "scene": {
+            k: (str(v) if isinstance(v, pathlib.Path) else v)
+            for k, v in vars(args).items()
+            if k not in ("func", "scene_file", "quiet", "traceback", "command")
+        },
+        "versions": versions(),
         "timing": rows,
         "distances": dist,
         "figures": figures,
@@ -97,67 +196,114 @@ def _timing_table(rows, n_steps) -> str:
 
 
 def _figures(scene, dp, mc, xg, vg, ref_x, ref_v, args) -> list[str]:
-    import matplotlib
+    from jdpim import _figures, exact
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from jdpim import exact
-
+    plt = _figures.pyplot()
     t_last = scene.save_at[-1]
+    title = _figures.scene_title(args.alpha, args.gamma, args.r, args.D)
     names = []
-    for var, g, ref, label in (("x", xg, ref_x, "x"), ("v", vg, ref_v, "x'")):
-        fig, axes = plt.subplots(1, len(scene.save_at), figsize=(4.2 * len(scene.save_at), 3.4), squeeze=False)
+    for var, g, ref in (("x", xg, ref_x), ("v", vg, ref_v)):
+        fig, axes = plt.subplots(1, len(scene.save_at), figsize=(3.2 * len(scene.save_at), 2.8), squeeze=False)
         for ax, t in zip(axes[0], scene.save_at, strict=True):
-            edges = np.linspace(g[0], g[-1], 61)
-            ax.stairs(np.asarray(mc.histogram(var, edges, t)), edges, color="0.75", fill=True, label="MCS histogram")
-            ax.plot(g, np.asarray(mc.pdf(var, g, t)), "k-", lw=1.2, label=f"MCS ({mc.n_paths})")
-            ax.plot(g, np.asarray(dp.pdf(var, g, t)), "r--", lw=1.5, label=f"DPIM ({dp.n_paths})")
+            curves = [
+                ("monte_carlo", f"MCS ({mc.n_paths})", mc.pdf(var, g, t), mc.pdf_stderr(var, g, t)),
+                ("dpim", f"DPIM ({dp.n_paths})", dp.pdf(var, g, t), None),
+            ]
             if t == t_last:
-                ax.plot(g, ref, "b:", lw=1.5, label="averaging (approx.)")
-            ax.set_title(f"t = {t:g} s")
-            ax.set_xlabel(label)
-        axes[0, 0].set_ylabel(f"p({label}, t)")
-        axes[0, -1].legend(fontsize=7)
-        fig.suptitle(f"marginal PDF of {label}: alpha={args.alpha}, gamma={args.gamma}, r={args.r}, D={args.D}")
+                curves.append(("reference", "stochastic averaging (approx.)", ref, None))
+            _figures.marginal(ax, g, curves, var)
+            ax.set_title(f"$t = {t:g}$ s")
+        axes[0, -1].legend()
+        fig.suptitle(title)
         fig.tight_layout()
         name = f"marginal_{var}.png"
-        fig.savefig(args.out / name, dpi=110)
+        fig.savefig(args.out / name, dpi=150)
         plt.close(fig)
         names.append(name)
-    xj, vj = xg[xg <= 0.6 * xg[-1]][::2], vg[np.abs(vg) <= 0.6 * vg[-1]][::2]
+    xj, vj = xg[::2], vg[::2]
     panels = [
-        ("DPIM", np.asarray(dp.joint_pdf(xj, vj, t_last))),
-        ("MCS", np.asarray(mc.joint_pdf(xj, vj, t_last))),
-        ("averaging (approx.)", exact.averaging_joint_pdf(xj, vj, args.alpha, args.gamma, args.r, args.D)),
+        (f"DPIM, $t = {t_last:g}$ s", np.asarray(dp.joint_pdf(xj, vj, t_last))),
+        (f"MCS, $t = {t_last:g}$ s", np.asarray(mc.joint_pdf(xj, vj, t_last))),
+        ("stochastic averaging (approx.)", exact.averaging_joint_pdf(xj, vj, args.alpha, args.gamma, args.r, args.D)),
     ]
-    levels = np.linspace(0, max(p.max() for _, p in panels), 12)[1:]
-    fig, axes = plt.subplots(1, 3, figsize=(12.5, 3.8), sharey=True, layout="constrained")
-    for ax, (title, p) in zip(axes, panels, strict=True):
-        cs = ax.contourf(xj, vj, p.T, levels=levels, cmap="viridis", extend="max")
-        ax.set_title(f"{title}, t = {t_last:g} s")
-        ax.set_xlabel("x")
-    axes[0].set_ylabel("x'")
-    fig.colorbar(cs, ax=axes, shrink=0.85, label="p(x, x')")
-    fig.savefig(args.out / "joint.png", dpi=110)
+    fig, axes = plt.subplots(1, 3, figsize=(11, 3.3), sharey=True, layout="constrained")
+    _figures.joint(fig, axes, xj, vj, panels)
+    fig.suptitle(title)
+    fig.savefig(args.out / "joint.png", dpi=150)
     plt.close(fig)
     return names + ["joint.png"]
 
 
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="jdpim", description=__doc__)
-    sub = parser.add_subparsers(dest="command")
+def _run_scene(args) -> dict:
+    from jdpim import _scenefile, _scenerun
+
+    sf = _scenefile.load(args.scene_file)
+    log = (lambda s: None) if args.quiet else (lambda s: print(s, flush=True))
+    return _scenerun.run(sf, args.out, progress=not args.quiet, log=log)
+
+
+def _paper(args) -> dict:
+    from jdpim import paper
+
+    settings = paper.QUICK if args.quick else paper.FULL
+    settings = settings.with_overrides(n_points=args.points, n_samples=args.samples, replicates=args.replicates)
+    log = (lambda s: None) if args.quiet else (lambda s: print(s, flush=True))
+    return paper.reproduce(settings, args.out, pdf=args.pdf, log=log, progress=not args.quiet)
+
+
+def _version() -> str:
+    import importlib.metadata
+
+    try:
+        return importlib.metadata.version("jdpim")
+    except importlib.metadata.PackageNotFoundError:
+        return "0.0.0 (source tree)"
+
+
+def parser() -> argparse.ArgumentParser:
+    p = _Parser(prog="jdpim", description=__doc__, formatter_class=_Formatter)
+    p.add_argument("--version", action="version", version=f"jdpim {_version()}", help="show the version and exit")
+    sub = p.add_subparsers(dest="command", parser_class=_Parser, metavar="{paper,run,bench}")
+    _paper_parser(sub)
     _run_parser(sub)
-    bench = sub.add_parser("bench", help="accuracy-versus-time benchmarks (see `jdpim bench -h`)", add_help=False)
-    bench.add_argument("rest", nargs=argparse.REMAINDER)
-    args = parser.parse_args(sys.argv[1:] if argv is None else argv)
-    if args.command == "bench":
+    sub.add_parser(
+        "bench", help="accuracy-versus-time, error-budget and speed benchmarks (`jdpim bench -h`)", add_help=False
+    )
+    return p
+
+
+def main(argv=None) -> int:
+    """Entry point: ``jdpim paper|run|bench ...``; returns the exit status (2 for user errors)."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv and argv[0] == "bench":
         from jdpim.bench.__main__ import main as bench_main
 
-        return bench_main(args.rest)
-    if args.command is None:
-        args = parser.parse_args(["run", *(sys.argv[1:] if argv is None else argv)])
-    run(args)
+        return bench_main(argv[1:])
+    p = parser()
+    if not argv or argv[0] not in ("paper", "run", "-h", "--help", "--version"):
+        argv = ["run", *argv]  # `python -m jdpim` alone is the main job, as before
+    try:
+        args = p.parse_args(argv)
+    except SystemExit as exit_:  # argparse: --help (0) or a bad value (2, one line already printed)
+        return int(exit_.code or 0)
+    from jdpim._scenefile import SceneFileError
+
+    try:
+        if args.command == "paper":
+            _paper(args)
+        elif args.scene_file is not None:
+            _run_scene(args)
+        else:
+            run(args)
+    except (SceneFileError, UsageError, ValueError, TypeError) as err:
+        if args.traceback:
+            raise
+        message = str(err).splitlines()[0] if str(err) else type(err).__name__
+        print(f"jdpim {args.command}: error: {message}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"jdpim {args.command}: interrupted", file=sys.stderr)
+        return 130
     return 0
 
 

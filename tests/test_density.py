@@ -86,7 +86,7 @@ def test_histogram_is_normalised_by_all_mass():
         (lambda y, w: jdpim.kde(y, w, np.array([1.0, 0.0]), 0.2), "strictly increasing"),
         (lambda y, w: jdpim.kde(y, w, np.linspace(0, 1, 5), 0.0), "bandwidth"),
         (lambda y, w: jdpim.kde(y, w, np.linspace(0, 1, 5), 0.2, barrier=np.nan), "barrier"),
-        (lambda y, w: jdpim.kde_2d(y, y, w, np.linspace(0, 1, 5), np.array([0.0]), 0.2, 0.2), "v_grid"),
+        (lambda y, w: jdpim.kde_2d(y, y, w, np.linspace(0, 1, 5), np.array([0.0, np.nan]), 0.2, 0.2), "v_grid"),
         (lambda y, w: jdpim.histogram(y, w, np.array([0.0, 0.0, 1.0])), "edges"),
     ],
 )

@@ -1,4 +1,4 @@
-"""Every notebook in notebooks/ runs top to bottom on the CPU (small settings)."""
+"""Every notebook in notebooks/ runs top to bottom on the CPU (small settings); ours open in Colab."""
 
 import pathlib
 
@@ -7,6 +7,8 @@ import pytest
 from nbclient import NotebookClient
 
 NOTEBOOKS = sorted((pathlib.Path(__file__).parents[1] / "notebooks").glob("*.ipynb"))
+COLAB = "https://colab.research.google.com/github/jdpim/jdpim/blob/main/notebooks/"
+WITH_BADGE = ("accuracy", "paper", "quickstart")  # sensitivities.ipynb gets its badge with its own work
 
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.stem for p in NOTEBOOKS])
@@ -15,3 +17,15 @@ def test_notebook_runs(path, tmp_path):
     NotebookClient(nb, timeout=600, kernel_name="python3", resources={"metadata": {"path": str(tmp_path)}}).execute()
     errors = [o for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", []) if o.output_type == "error"]
     assert not errors
+
+
+@pytest.mark.parametrize("name", WITH_BADGE)
+def test_notebook_opens_in_colab_with_outputs_committed(name):
+    nb = nbformat.read(pathlib.Path(__file__).parents[1] / "notebooks" / f"{name}.ipynb", as_version=4)
+    assert f"({COLAB}{name}.ipynb)" in nb.cells[0].source and "Open in Colab" in nb.cells[0].source
+    install = nb.cells[1]
+    assert install.cell_type == "code" and "except ImportError" in install.source and "pip install" in install.source
+    code = [c for c in nb.cells if c.cell_type == "code"]
+    assert all(c.execution_count is not None for c in code), "commit the notebook executed"
+    assert sum(bool(c.outputs) for c in code) >= 2
+    assert not [o for c in code for o in c.outputs if o.output_type == "error"]
