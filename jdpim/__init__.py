@@ -11,6 +11,7 @@ from ._density import kde_2d as kde_2d
 from ._distributions import Normal as Normal
 from ._distributions import Uniform as Uniform
 from ._excitation import SpectralRepresentation as SpectralRepresentation
+from ._grid_result import GridResult as GridResult
 from ._integrate import ImpactRule as ImpactRule
 from ._integrate import Substeps as Substeps
 from ._models import AbstractOscillator as AbstractOscillator
@@ -22,6 +23,9 @@ from ._pipelines import dpim as dpim
 from ._pipelines import dpim_points as dpim_points
 from ._pipelines import monte_carlo as monte_carlo
 from ._pipelines import simulate as simulate
+from ._path_integration import PathIntegration as PathIntegration
+from ._path_integration import PathIntegrationWarning as PathIntegrationWarning
+from ._path_integration import path_integration as path_integration
 from ._points import PointSet as PointSet
 from ._points import gf_discrepancy as gf_discrepancy
 from ._points import select_points as select_points
