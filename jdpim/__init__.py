@@ -18,14 +18,14 @@ from ._models import AbstractOscillator as AbstractOscillator
 from ._models import Oscillator as Oscillator
 from ._models import VibroImpactOscillator as VibroImpactOscillator
 from ._noise import WhiteNoise as WhiteNoise
+from ._path_integration import PathIntegration as PathIntegration
+from ._path_integration import PathIntegrationWarning as PathIntegrationWarning
+from ._path_integration import path_integration as path_integration
 from ._pipelines import NonFiniteWarning as NonFiniteWarning
 from ._pipelines import dpim as dpim
 from ._pipelines import dpim_points as dpim_points
 from ._pipelines import monte_carlo as monte_carlo
 from ._pipelines import simulate as simulate
-from ._path_integration import PathIntegration as PathIntegration
-from ._path_integration import PathIntegrationWarning as PathIntegrationWarning
-from ._path_integration import path_integration as path_integration
 from ._points import PointSet as PointSet
 from ._points import gf_discrepancy as gf_discrepancy
 from ._points import select_points as select_points

@@ -47,7 +47,7 @@ class GridResult:
     def _index(self, t) -> int:
         if t is None:
             if not self.stationary:
-                raise ValueError("t is required for a transient result (saved times: " f"{self.saved_times})")
+                raise ValueError(f"t is required for a transient result (saved times: {self.saved_times})")
             return 0
         if self.stationary:
             return 0
@@ -78,7 +78,7 @@ class GridResult:
         nodes = self.x if var == "x" else self.v
         m = self.nodal_marginal(var, t)
         start, w = _stencil(jnp.asarray(grid, dtype=m.dtype), nodes)
-        return jnp.sum(m[start[:, None] + jnp.arange(w.shape[-1])] * w, axis=-1)
+        return jnp.sum(m[start[:, None] + jnp.arange(w.shape[-1])[None, :]] * w, axis=-1)
 
     def joint_pdf(self, x_grid, v_grid, t: float | None = None):
         """Joint PDF at ``t`` (cubic interpolation between nodes); shape ``(len(x_grid), len(v_grid))``."""
@@ -87,7 +87,7 @@ class GridResult:
         p = self.joint(t)
         sx, wx = _stencil(jnp.asarray(x_grid, dtype=p.dtype), self.x)
         sv, wv = _stencil(jnp.asarray(v_grid, dtype=p.dtype), self.v)
-        k = jnp.arange(wx.shape[-1])
+        k = jnp.arange(wx.shape[-1])[None, :]
         rows = p[sx[:, None] + k]  # (Gx, 4, n_v)
         px = jnp.einsum("gkn,gk->gn", rows, wx)  # (Gx, n_v)
         return jnp.einsum("gvk,vk->gv", px[:, sv[:, None] + k], wv)

@@ -48,7 +48,9 @@ class PathIntegration:
             differentiating with respect to parameters that set them (D, alpha, gamma, r).
         tau: time step, s (saved times must be multiples of it, counted from the start).
         substeps: RK4 substeps of the back-trace over one step.
-        order: interpolation points per axis (4: cubic, 6: quintic Lagrange).
+        order: interpolation points per axis (2: linear, 4: cubic, 6: quintic Lagrange), or ``None``:
+            4, except 2 for a barrier with ``r < 0.5`` (there the outgoing density near ``(barrier, 0)`` is
+            squeezed by ``r`` into a layer thinner than the grid, and only linear weights stay positive).
         t0: a point-mass start (the scene's ``x0``/``v0``) is replaced by the Gaussian of the system
             linearised at the start, at time ``t0`` (s, a multiple of ``tau``), folded at the barrier.
         newton: Newton steps of the stationary solve (each one GMRES solve).
@@ -68,7 +70,7 @@ class PathIntegration:
     v_max: float | None = None
     tau: float = 0.05
     substeps: int = 2
-    order: int = 4
+    order: int | None = None
     t0: float = 1.0
     newton: int = 3
     restart: int = 60
@@ -81,7 +83,7 @@ class PathIntegration:
             check_int(name, getattr(self, name), low=low)
         check_int("max_restarts", self.max_restarts, low=1)
         check_int("warmup", self.warmup, low=0)
-        if self.order not in (2, 4, 6):
+        if self.order not in (None, 2, 4, 6):
             raise ValueError(f"order must be 2, 4 or 6 interpolation points per axis, got {self.order!r}")
         for name in ("x_max", "v_max"):
             if getattr(self, name) is not None:
@@ -364,6 +366,9 @@ def path_integration(
     settings = PathIntegration() if settings is None else settings
     _validate(scene, settings, initial, stationary)
     extents = default_extents(scene, settings)
+    if settings.order is None:
+        r = concrete(scene.model.r) if scene.model.has_barrier else None
+        settings = dataclasses.replace(settings, order=2 if r is not None and float(np.max(r)) < 0.5 else 4)
     if stationary:
         res = _stationary(scene, settings, extents)
     else:

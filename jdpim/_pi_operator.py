@@ -1,4 +1,4 @@
-r"""The one-step operator of path integration on a phase-space grid (no state: pure functions of the model).
+r"""The one-step operator of path integration on a phase-space grid (pure functions of the model).
 
 One step of length ``tau`` is the Strang splitting of the Fokker-Planck operator
 
@@ -12,15 +12,17 @@ into half a diffusion step in ``v``, the deterministic flow over ``tau``, and an
   ``K_jk = N(v_j - v_k; 2 q(x_i, v_k) tau / 2)`` sampled on the grid and normalised by its sum over the
   infinite grid, so no mass is created, and what the kernel puts beyond the grid's velocity edges is lost
   (and reported).
-* **Flow** (semi-Lagrangian). Every node is traced back over ``-tau`` with RK4 in Zhuravlev's unfolded
-  coordinates ``x - b = |s|``, ``v = sign(s) u``; a back-trace crossing ``s = 0`` meets the impact law
-  ``u -> u / r`` (backwards) and the density factor ``1 / r^2`` (the impact map contracts phase-space area
-  by ``r^2``). The density at the traced point is interpolated with tensor-product Lagrange polynomials
-  of ``order`` points per axis, and multiplied by ``exp(-int div a dt)`` along the path (``exp(alpha tau)``
-  for linear damping).
+* **Flow** (forward semi-Lagrangian, mass-conservative). The mass of every node (density times the
+  node's area) is carried to the node's image under the flow over ``tau`` (RK4 in Zhuravlev's unfolded
+  coordinates ``x - b = |s|``, ``v = sign(s) u``; a crossing of ``s = 0`` inside a substep is an impact,
+  ``u -> r u`` and ``s -> r s`` for the rest of it) and deposited on the surrounding nodes with the
+  tensor-product Lagrange weights of ``order`` points per axis (the transpose of interpolation). The
+  weights sum to one, so mass is conserved exactly; no Jacobian or ``1/r^2`` factor is needed, because
+  mass, not density, is moved. Stencils are centred; at the barrier they reach ghost columns whose mass
+  is folded back through the impact law (``_fold``), at the other edges they are shifted inwards.
 
-The trace points and weights do not depend on time: they are computed once per solve (traced, so
-they are differentiable in the model's parameters) and a step is a gather plus two small matrix products.
+The images and weights do not depend on time: they are computed once per solve (traced, hence
+differentiable in the model's parameters), and a step is a scatter-add plus two small matrix products.
 """
 
 from __future__ import annotations
@@ -81,7 +83,7 @@ def cardinal_areas(n: int, order: int) -> np.ndarray:
 
 
 def make_grid(model: AbstractOscillator, n_x: int, n_v: int, x_max: float, v_max: float, dtype) -> Grid:
-    """The grid: ``x`` in ``[b, b + x_max]`` with a barrier ``b``, else ``[-x_max, x_max]``; ``v`` in ``[-v_max, v_max]``."""
+    """Nodes: ``x`` in ``[b, b + x_max]`` (barrier ``b``) or ``[-x_max, x_max]``; ``v`` in ``[-v_max, v_max]``."""
     if model.has_barrier:
         lo = jnp.asarray(model.barrier, dtype)
         dx = jnp.asarray(x_max / (n_x - 1), dtype)
@@ -198,14 +200,14 @@ class StepOperator:
     def flow(self, p):
         """Deposit every node's mass at its image with the interpolation weights (mass-conservative)."""
         ghost = 0 if self.fold is None else self.order // 2
-        k = jnp.arange(self.order)
+        k = jnp.arange(self.order)[None, None, :]
         rows = (self.ix[..., None] + k + ghost)[..., :, None]
         cols = (self.iv[..., None] + k)[..., None, :]
         mass = (p * self.area)[..., None, None] * self.wx[..., :, None] * self.wv[..., None, :]
         out = jnp.zeros((p.shape[0] + ghost, p.shape[1]), p.dtype).at[rows, cols].add(mass)
         if ghost:
             fi, fj, fwx, fwv = self.fold
-            j = jnp.arange(2)
+            j = jnp.arange(2)[None, None, :]
             # ghost columns fold back through the impact map; the barrier column is the fold line itself:
             # half of its mass stays, half is mirrored (as the unfolded grid's two nodes at s = 0 would be)
             edge = out[: ghost + 1].at[ghost].multiply(0.5)
@@ -251,11 +253,18 @@ def step_operator(
 
 
 def _fold(model, grid: Grid, ghost: int, n_v: int):
-    """Where the mass of ghost node ``(b - k dx, v_j)``, k = g .. 0, goes: its impact image ``(b + r k dx, -r v_j)``."""
+    """Where the mass deposited on ghost node ``(b - k dx, v_j)``, k = g .. 0, goes (bilinear weights).
+
+    Ghost nodes carry the part of a deposit that the interpolation stencil spreads beyond the barrier,
+    i.e. the smooth continuation of the density there. Moving with ``v_j < 0`` it continues the incoming
+    density, which the impact maps to ``(b + r k dx, -r v_j)``; with ``v_j > 0`` it continues the outgoing
+    density, which came from ``(b + k dx / r, -v_j / r)`` (mirrored instead where ``v_j / r`` lies beyond
+    the grid). For ``r = 1`` both are the mirror image. Mass is conserved whatever r.
+    """
     r = jnp.asarray(model.r, grid.x.dtype)
-    k = jnp.arange(ghost, -1, -1, dtype=grid.x.dtype)[:, None] * jnp.ones((1, n_v), grid.x.dtype)  # rows: -g .. 0
-    r = jnp.where(k > 0, r, 1.0)  # the barrier column mirrors without loss (its mass has not impacted)
-    tv = (-r * grid.v[None, :] - grid.v[0]) / grid.dv
-    fi, fwx = lagrange(r * k, grid.x.shape[0], 2)
-    fj, fwv = lagrange(tv, n_v, 2)
+    k = jnp.arange(ghost, -1, -1, dtype=grid.x.dtype)[:, None]  # rows: -g .. 0
+    # outgoing ghosts whose source would lie beyond the grid's speeds are mirrored instead (nothing is lost)
+    scale = jnp.where(grid.v < 0, r, jnp.where(grid.v < r * grid.v[-1], 1.0 / r, 1.0))[None, :]
+    fi, fwx = lagrange(scale * k, grid.x.shape[0], 2)
+    fj, fwv = lagrange((-scale * grid.v[None, :] - grid.v[0]) / grid.dv * jnp.ones_like(k), n_v, 2)
     return fi, fj, fwx, fwv
