@@ -28,6 +28,7 @@ class GridResult:
             the open edges (``x = x_max``, ``v = +-v_max``); large values mean the grid is too small.
         residual: stationary solve only: ``||T p - p||_1`` of the one-step operator ``T`` (else ``nan``).
         step_gain: stationary solve only: mass kept by one step before renormalisation (1 = nothing lost).
+        newton_steps: stationary solve only: Newton (GMRES) steps taken (0 for a transient result).
         stationary: whether this is a stationary density (then ``t`` may be left out).
 
     Densities and moments use the trapezoidal rule on the nodes; ``pdf``/``joint_pdf`` interpolate
@@ -42,6 +43,7 @@ class GridResult:
     edge_mass: Any
     residual: Any
     step_gain: Any
+    newton_steps: Any
     stationary: bool = static_field(default=False)
 
     def _index(self, t) -> int:

@@ -53,7 +53,8 @@ class PathIntegration:
             squeezed by ``r`` into a layer thinner than the grid, and only linear weights stay positive).
         t0: a point-mass start (the scene's ``x0``/``v0``) is replaced by the Gaussian of the system
             linearised at the start, at time ``t0`` (s, a multiple of ``tau``), folded at the barrier.
-        newton: Newton steps of the stationary solve (each one GMRES solve).
+        newton: most Newton steps of the stationary solve (each one GMRES solve); it stops earlier once
+            the L1 residual of a step is below 1e-8 (float64) or 3e-6 (float32).
         restart, max_restarts: GMRES Krylov dimension and number of restarts per solve.
         warmup: plain steps before the Newton solve (from a Gaussian guess).
         leak_tol: largest mass allowed in the outermost node rows before a ``PathIntegrationWarning``.
@@ -270,7 +271,8 @@ def _transient(scene: Scene, settings: PathIntegration, extents, initial):
     density, defect, leak = (jnp.stack(z) for z in zip(*outs, strict=True))
     nan = jnp.full(density.shape[:1], jnp.nan, dtype)
     times = jnp.asarray(scene.save_at, dtype)
-    return GridResult(times, density, grid.x, grid.v, defect, leak, nan, nan, stationary=False)
+    none = jnp.zeros(density.shape[:1], dtype)
+    return GridResult(times, density, grid.x, grid.v, defect, leak, nan, nan, none, stationary=False)
 
 
 def _gmres(settings: PathIntegration, matvec, b):
@@ -295,19 +297,28 @@ def _stationary(scene: Scene, settings: PathIntegration, extents):
     def residual(p):
         return normalised_step(ops, p) - p
 
+    tol = 1e-8 if guess.dtype == jnp.float64 else 3e-6  # L1 residual of one step at which Newton stops
+
     def solve(f, p):
         p = jax.lax.fori_loop(0, settings.warmup, lambda _, p: normalised_step(ops, p), p)
-        for _ in range(settings.newton):
+
+        def newton(carry):
+            k, p, _ = carry
             r, jvp = jax.linearize(f, p)
             p = p + _gmres(settings, jvp, -r)
-        return p
+            return k + 1, p, jnp.sum(weights * jnp.abs(f(p)))
+
+        first = jnp.sum(weights * jnp.abs(f(p)))
+        zero = jnp.zeros((), p.dtype)  # a float count: custom_root gives its aux a tangent
+        k, p, _ = jax.lax.while_loop(lambda c: (c[0] < settings.newton) & (c[2] > tol), newton, (zero, p, first))
+        return p, k
 
     def tangent_solve(g, y):
         return jax.lax.custom_linear_solve(
             g, y, solve=functools.partial(_gmres, settings), transpose_solve=functools.partial(_gmres, settings)
         )
 
-    p = jax.lax.custom_root(residual, guess, solve, tangent_solve)
+    p, newton_steps = jax.lax.custom_root(residual, guess, solve, tangent_solve, has_aux=True)
     p_ = jax.lax.stop_gradient(p)
     q = ops.step(p_)
     gain = jnp.sum(weights * q)
@@ -323,6 +334,7 @@ def _stationary(scene: Scene, settings: PathIntegration, extents):
         one * jnp.sum(edge * p_),
         one * res,
         one * gain,
+        jnp.reshape(jax.lax.stop_gradient(newton_steps), (1,)),
         stationary=True,
     )
 
