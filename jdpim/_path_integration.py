@@ -381,12 +381,40 @@ def path_integration(
     if settings.order is None:
         r = concrete(scene.model.r) if scene.model.has_barrier else None
         settings = dataclasses.replace(settings, order=2 if r is not None and float(np.max(r)) < 0.5 else 4)
+    _check_resolution(scene, settings, extents, point_start=initial is None and not stationary)
     if stationary:
         res = _stationary(scene, settings, extents)
     else:
         res = _transient(scene, settings, extents, initial)
     _report(res, settings)
     return res
+
+
+def _check_resolution(scene: Scene, settings: PathIntegration, extents, point_start: bool) -> None:
+    """Warn when the grid cannot resolve the diffusion of one step or the Gaussian of a point start."""
+    model, D = scene.model, concrete(scene.noise.D)
+    b = concrete(model.barrier) if model.has_barrier else np.zeros(())
+    if D is None or b is None:
+        return  # traced: nothing to check here
+    _, q_fn = drift_and_diffusion(model, D)
+    q = float(q_fn(jnp.asarray(float(b)), jnp.asarray(0.0)))
+    span_x = extents[0] if model.has_barrier else 2 * extents[0]
+    dx, dv = span_x / (settings.n_x - 1), 2 * extents[1] / (settings.n_v - 1)
+    problems = []
+    if math.sqrt(q * settings.tau) < 0.6 * dv:  # below that the sampled kernel loses its variance
+        problems.append(
+            f"the half-step diffusion (sd sqrt(q tau) = {math.sqrt(q * settings.tau):.3g}) is below 0.6 times "
+            f"the velocity spacing dv = {dv:.3g}: raise n_v or tau"
+        )
+    if point_start:
+        sx, sv = math.sqrt(2 * q * settings.t0**3 / 3), math.sqrt(2 * q * settings.t0)
+        if sx < 1.5 * dx or sv < 1.5 * dv:
+            problems.append(
+                f"the start density at t0 = {settings.t0:g} (sd {sx:.3g} in x, {sv:.3g} in v) is narrower than 1.5 "
+                f"grid spacings (dx = {dx:.3g}, dv = {dv:.3g}): raise n_x/n_v or t0"
+            )
+    if problems:
+        warnings.warn("path integration: grid too coarse: " + "; ".join(problems), PathIntegrationWarning, stacklevel=3)
 
 
 def _report(res: GridResult, settings: PathIntegration) -> None:

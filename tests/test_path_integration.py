@@ -135,8 +135,9 @@ def test_stationary_jacfwd_matches_central_differences():
     assert np.max(np.abs(jac - fd) / (np.abs(fd) + 1e-2)) < 1e-3, (jac, fd)
 
 
+@pytest.mark.slow
 def test_transient_gradient_through_scan():
-    settings = jdpim.PathIntegration(n_x=31, n_v=61, x_max=2.0, v_max=2.0, tau=0.2, t0=0.2)
+    settings = jdpim.PathIntegration(n_x=61, n_v=121, x_max=2.4, v_max=2.4, tau=0.2, t0=1.0)
 
     def second_moment(alpha):
         model = jdpim.VibroImpactOscillator(alpha=alpha, gamma=None, r=0.8)
@@ -147,6 +148,11 @@ def test_transient_gradient_through_scan():
         g = float(jax.grad(second_moment)(0.1))
         fd = float((second_moment(0.1 + 1e-5) - second_moment(0.1 - 1e-5)) / 2e-5)
     assert g == pytest.approx(fd, rel=1e-4)
+
+
+def test_too_coarse_grid_is_reported():
+    with pytest.warns(jdpim.PathIntegrationWarning, match="too coarse"):
+        jdpim.path_integration(elastic("float32", save_at=(5.0,)), jdpim.PathIntegration(n_x=11, n_v=21, tau=0.1))
 
 
 def test_too_small_grid_is_reported():
