@@ -50,7 +50,7 @@ class Sweep:
     repeats: int = 3
     reference_samples: int = 200_000
     big_run: float = 1e8  # path-steps above which a configuration is timed once after its warm-up
-    pi_grids: tuple[tuple[int, int], ...] = ((41, 81), (61, 121), (121, 241))  # (n_x, n_v) of path integration
+    pi_grids: tuple[tuple[int, int], ...] = ((121, 241), (161, 321), (241, 481))  # (n_x, n_v) of path integration
     pi_tau: float = 0.05
 
 
@@ -61,7 +61,7 @@ QUICK = Sweep(
     replicates=2,
     repeats=1,
     reference_samples=20_000,
-    pi_grids=((41, 81), (61, 121)),
+    pi_grids=((121, 241),),
 )
 
 
