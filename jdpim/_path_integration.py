@@ -211,7 +211,7 @@ def _point_start(scene: Scene, grid, dtype, t0: float, n: int = 200):
         return gauss(X, V), C
     b = jnp.asarray(model.barrier, dtype)
     r = jnp.asarray(model.r, dtype)
-    # mass that the Gaussian puts beyond the barrier has impacted: (b - s, -u) <- (b + s / r, -u / r)... folded
+    # Gaussian mass beyond the barrier has impacted: from (b - d, v) it went to (b + r d, -r v) (area factor r^2)
     return gauss(X, V) + gauss(b - (X - b) / r, -V / r) / r**2, C
 
 
@@ -350,8 +350,8 @@ def path_integration(
 
     Solves the Fokker-Planck equation of ``x'' + g(x) + f(x, x') = h(x, x') . xi(t)`` on
     ``x >= barrier`` with the impact law ``x'_+ = -r x'_-`` (white noise ``E[xi xi^T] = 2 D delta``,
-    Stratonovich gains) by the step operator described in ``jdpim.PathIntegration``'s module, with
-    renormalisation after each step (the defect is reported as ``mass_defect``).
+    Stratonovich gains) by a mass-conservative splitting step on a grid (see ``docs/path_integration.md``),
+    with renormalisation after each step (the defect is reported as ``mass_defect``).
 
     Args:
         scene: the physics: model, noise, start ``x0``/``v0`` (a point mass, see ``PathIntegration.t0``),
@@ -370,8 +370,8 @@ def path_integration(
     Example:
         >>> import jdpim
         >>> scene = jdpim.Scene(jdpim.VibroImpactOscillator(alpha=0.1, gamma=None, r=1.0),
-        ...                     noise=jdpim.WhiteNoise(D=0.01), t_end=2.0, dt=0.05)
-        >>> res = jdpim.path_integration(scene, jdpim.PathIntegration(n_x=31, n_v=61))
+        ...                     noise=jdpim.WhiteNoise(D=0.01), t_end=2.0, dt=0.1)
+        >>> res = jdpim.path_integration(scene, jdpim.PathIntegration(n_x=61, n_v=121, tau=0.1))
         >>> round(float(res.mass(t=2.0)), 4)
         1.0
     """
