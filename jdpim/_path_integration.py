@@ -56,7 +56,8 @@ class PathIntegration:
         newton: most Newton steps of the stationary solve (each one GMRES solve); it stops earlier once
             the L1 residual of a step is below 1e-8 (float64) or 3e-6 (float32).
         restart, max_restarts: GMRES Krylov dimension and number of restarts per solve.
-        warmup: plain steps before the Newton solve (from a Gaussian guess).
+        warmup: plain steps before the Newton solve (from the averaged law ``exp(-(a_e H + b H^2)/q)``
+            estimated as for the extents, or a Gaussian when the parameters are traced).
         leak_tol: largest mass allowed in the outermost node rows before a ``PathIntegrationWarning``.
 
     Example:
@@ -113,10 +114,12 @@ def _scalar(name, value) -> float:
     return float(arr)
 
 
-def default_extents(scene: Scene, settings: PathIntegration) -> tuple[float, float]:
-    """``(x_max, v_max)``: the settings' extents, or estimates from the scene (see ``PathIntegration``)."""
-    if settings.x_max is not None and settings.v_max is not None:
-        return float(settings.x_max), float(settings.v_max)
+def averaged_energy_law(scene: Scene) -> tuple[float, float, float, float]:
+    """``(a_e, b, q, k)`` of the averaged stationary law ``exp(-(a_e H + b H^2) / q)``, ``H = (k x^2 + v^2) / 2``.
+
+    ``a_e`` = linear damping at the barrier (or 0) + ``(1 - r^2) / pi``, ``b = 3 gamma / 4`` (reference model
+    only), ``q = h^T D h`` and ``k = g'`` there. Needs concrete parameters; raises ``ValueError`` otherwise.
+    """
     model = scene.model
     b = _scalar("barrier", model.barrier) if model.has_barrier else 0.0
     D = concrete(scene.noise.D)
@@ -133,11 +136,20 @@ def default_extents(scene: Scene, settings: PathIntegration) -> tuple[float, flo
             "cannot estimate the grid extents for this model (needs noise, a positive stiffness and damping "
             f"at the start; got q={q:g}, stiffness={stiff:g}, damping={a_e:g}): give x_max and v_max"
         )
-    # (a_e H + cubic H^2) / q = ENERGY_SPAN
-    c = ENERGY_SPAN * q
+    return a_e, cubic, q, stiff
+
+
+def default_extents(scene: Scene, settings: PathIntegration) -> tuple[float, float]:
+    """``(x_max, v_max)``: the settings' extents, or estimates from the scene (see ``PathIntegration``)."""
+    if settings.x_max is not None and settings.v_max is not None:
+        return float(settings.x_max), float(settings.v_max)
+    a_e, cubic, q, stiff = averaged_energy_law(scene)
+    c = ENERGY_SPAN * q  # (a_e H + cubic H^2) / q = ENERGY_SPAN
     H = c / a_e if cubic == 0 else (-a_e + math.sqrt(a_e * a_e + 4 * cubic * c)) / (2 * cubic)
     v_max = math.sqrt(2 * H)
     x_max = v_max / math.sqrt(stiff)
+    model = scene.model
+    b = _scalar("barrier", model.barrier) if model.has_barrier else 0.0
     x0, v0 = _start(scene)
     x0, v0 = float(np.max(np.abs(concrete(x0) - b))), float(np.max(np.abs(concrete(v0))))
     x_max = max(x_max, 1.5 * x0 + 0.5 * x_max) if x0 else x_max
@@ -276,18 +288,21 @@ def _transient(scene: Scene, settings: PathIntegration, extents, initial):
 
 
 def _gmres(settings: PathIntegration, matvec, b):
-    tol = 1e-10 if b.dtype == jnp.float64 else 1e-5
+    tol = 1e-7 if b.dtype == jnp.float64 else 1e-5
     x, _ = gmres(matvec, b, tol=tol, restart=settings.restart, maxiter=settings.max_restarts)
     return x
 
 
-@functools.partial(jax.jit, static_argnames=("settings", "extents"))
-def _stationary(scene: Scene, settings: PathIntegration, extents):
+@functools.partial(jax.jit, static_argnames=("settings", "extents", "law"))
+def _stationary(scene: Scene, settings: PathIntegration, extents, law):
     grid, ops, weights, edge = _setup(scene, settings, extents)
     X, V = jnp.meshgrid(grid.x, grid.v, indexing="ij")
     centre = grid.x[0] if scene.model.has_barrier else 0.0
-    s2 = (extents[1] / math.sqrt(2 * ENERGY_SPAN)) ** 2
-    guess = jnp.exp(-0.5 * (((X - centre) * extents[1] / extents[0]) ** 2 + V**2) / s2)
+    if law is None:  # a Gaussian as wide as the grid allows
+        law = (2 * ENERGY_SPAN / extents[1] ** 2, 0.0, 1.0, (extents[1] / extents[0]) ** 2)
+    a_e, cubic, q, stiff = law
+    H = 0.5 * (stiff * (X - centre) ** 2 + V**2)
+    guess = jnp.exp(-(a_e * H + cubic * H * H) / q)  # the averaged stationary law: a close start
     guess = guess / jnp.sum(weights * guess)
 
     def normalised_step(ops: StepOperator, p):
@@ -383,7 +398,11 @@ def path_integration(
         settings = dataclasses.replace(settings, order=2 if r is not None and float(np.max(r)) < 0.5 else 4)
     _check_resolution(scene, settings, extents, point_start=initial is None and not stationary)
     if stationary:
-        res = _stationary(scene, settings, extents)
+        try:
+            law = averaged_energy_law(scene)
+        except (ValueError, TypeError, jax.errors.ConcretizationTypeError):  # traced or not estimable: a Gaussian
+            law = None
+        res = _stationary(scene, settings, extents, law)
     else:
         res = _transient(scene, settings, extents, initial)
     _report(res, settings)
