@@ -12,12 +12,16 @@ from ._density import kde_stderr as kde_stderr
 from ._distributions import Normal as Normal
 from ._distributions import Uniform as Uniform
 from ._excitation import SpectralRepresentation as SpectralRepresentation
+from ._grid_result import GridResult as GridResult
 from ._integrate import ImpactRule as ImpactRule
 from ._integrate import Substeps as Substeps
 from ._models import AbstractOscillator as AbstractOscillator
 from ._models import Oscillator as Oscillator
 from ._models import VibroImpactOscillator as VibroImpactOscillator
 from ._noise import WhiteNoise as WhiteNoise
+from ._path_integration import PathIntegration as PathIntegration
+from ._path_integration import PathIntegrationWarning as PathIntegrationWarning
+from ._path_integration import path_integration as path_integration
 from ._pipelines import NonFiniteWarning as NonFiniteWarning
 from ._pipelines import dpim as dpim
 from ._pipelines import dpim_points as dpim_points

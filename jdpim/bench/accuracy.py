@@ -10,7 +10,9 @@ Cases:
 The error of a run is the L1 distance of the marginal PDFs of x and x', averaged over both variables and
 the saved times. Every run is timed with the protocol of ``jdpim.bench.timed`` (AOT compile reported
 apart, warm-up, repeats, median). DPIM replicates use different harmonic permutations (``seed`` of
-``SpectralRepresentation``); MCS replicates use different seeds.
+``SpectralRepresentation``); MCS replicates use different seeds. Path-integration rows (deterministic,
+one replicate; ``n_paths`` is the number of grid nodes) start from rest like the simulations and are
+timed as a first call (compile and run) followed by warm repeats; their compile time is the difference.
 """
 
 from __future__ import annotations
@@ -20,13 +22,16 @@ import json
 import math
 import pathlib
 import statistics
+import time
 
+import jax
 import numpy as np
 
 from .. import exact, metrics
 from .._excitation import SpectralRepresentation
 from .._models import VibroImpactOscillator
 from .._noise import WhiteNoise
+from .._path_integration import PathIntegration, path_integration
 from .._scene import Scene
 from .timing import timed
 
@@ -45,6 +50,8 @@ class Sweep:
     repeats: int = 3
     reference_samples: int = 200_000
     big_run: float = 1e8  # path-steps above which a configuration is timed once after its warm-up
+    pi_grids: tuple[tuple[int, int], ...] = ((121, 241), (161, 321), (241, 481))  # (n_x, n_v) of path integration
+    pi_tau: float = 0.05
 
 
 QUICK = Sweep(
@@ -54,6 +61,7 @@ QUICK = Sweep(
     replicates=2,
     repeats=1,
     reference_samples=20_000,
+    pi_grids=((121, 241),),
 )
 
 
@@ -122,6 +130,20 @@ def monte_carlo_reference(scene: Scene, n: int, seed: int = 10_000, n_batches: i
     return refs, float(np.mean(batch_errs) * math.sqrt(size / n))
 
 
+def timed_path_integration(scene: Scene, settings: PathIntegration, repeats: int = 3):
+    """Path integration of ``scene`` under the timing protocol; returns the result and ``(median_s, compile_s)``."""
+    t0 = time.perf_counter()
+    res = jax.block_until_ready(path_integration(scene, settings))
+    first = time.perf_counter() - t0
+    runs = []
+    for _ in range(max(1, repeats)):
+        t0 = time.perf_counter()
+        res = jax.block_until_ready(path_integration(scene, settings))
+        runs.append(time.perf_counter() - t0)
+    median = statistics.median(runs)
+    return res, (median, max(first - median, 0.0))
+
+
 def sweep(case: str, cfg: Sweep, *, log=print, on_row=None) -> dict:
     """Run the sweep for ``case`` (``"elastic"`` or ``"paper"``); returns rows and the reference's error.
 
@@ -168,6 +190,27 @@ def sweep(case: str, cfg: Sweep, *, log=print, on_row=None) -> dict:
                 f"[{case}] {method:11s} n={n:>7d}  L1={row['l1_mean']:.4f} [{row['l1_min']:.4f}, {row['l1_max']:.4f}]"
                 f"  time={row['time_s']:.3f}s  compile={row['compile_s']:.1f}s"
             )
+    for n_x, n_v in cfg.pi_grids:
+        settings = PathIntegration(n_x=n_x, n_v=n_v, tau=cfg.pi_tau)
+        res, (median, compile_s) = timed_path_integration(base, settings, repeats=cfg.repeats)
+        err = pdf_error(res, refs)
+        steps = round((base.t_end - settings.t0) / settings.tau)
+        row = {
+            "case": case,
+            "method": "path_integration",
+            "n_paths": n_x * n_v,
+            "l1_mean": err,
+            "l1_min": err,
+            "l1_max": err,
+            "replicates": 1,
+            "time_s": median,
+            "compile_s": compile_s,
+            "path_steps_per_s": n_x * n_v * steps / median,
+        }
+        rows.append(row)
+        if on_row is not None:
+            on_row({"case": case, "rows": rows, "reference_l1": ref_err, "sweep": dataclasses.asdict(cfg)})
+        log(f"[{case}] path_int.   {n_x}x{n_v}  L1={err:.2e}  time={median:.3f}s  compile={compile_s:.1f}s")
     return {"case": case, "rows": rows, "reference_l1": ref_err, "sweep": dataclasses.asdict(cfg)}
 
 
@@ -196,7 +239,7 @@ def write(results: list[dict], out: pathlib.Path) -> list[str]:
     (out / "accuracy.csv").write_text("\n".join(lines) + "\n")
     fig, axes = plt.subplots(1, len(results), figsize=(5.5 * len(results), 4.2), squeeze=False)
     for ax, res in zip(axes[0], results, strict=True):
-        for method, style in (("dpim", "ro-"), ("monte_carlo", "ks-")):
+        for method, style in (("dpim", "ro-"), ("monte_carlo", "ks-"), ("path_integration", "b^-")):
             rows = [r for r in res["rows"] if r["method"] == method]
             t = [r["time_s"] for r in rows]
             ax.errorbar(
@@ -205,7 +248,9 @@ def write(results: list[dict], out: pathlib.Path) -> list[str]:
                 yerr=[[r["l1_mean"] - r["l1_min"] for r in rows], [r["l1_max"] - r["l1_mean"] for r in rows]],
                 fmt=style,
                 capsize=2,
-                label="DPIM" if method == "dpim" else "MCS",
+                label={"dpim": "DPIM", "monte_carlo": "MCS", "path_integration": "path integration (grid nodes)"}[
+                    method
+                ],
             )
             for r in rows:
                 ax.annotate(

@@ -1,0 +1,457 @@
+r"""Path integration: the transition density of a one-degree-of-freedom scene on a phase-space grid.
+
+``jdpim.path_integration(scene)`` evolves the joint density ``p(x, v, t)`` of the scene's oscillator with
+the one-step operator of ``jdpim._pi_operator`` (Strang splitting: half a Gaussian diffusion step in ``v``,
+the deterministic flow by semi-Lagrangian back-tracing with the impact law, another half diffusion step)
+and renormalises after every step, reporting the defect. ``stationary=True`` finds the fixed point of the
+step by a Newton-Krylov (GMRES) solve, differentiated implicitly (``jax.lax.custom_root``: one linear
+solve per tangent or cotangent, no back-propagation through the iterations).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+import warnings
+from collections.abc import Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.scipy.sparse.linalg import gmres
+
+from ._grid_result import GridResult
+from ._models import AbstractOscillator, VibroImpactOscillator
+from ._pi_operator import StepOperator, drift_and_diffusion, make_grid, step_operator
+from ._pytree import check_int, check_real, concrete
+from ._scene import Scene
+
+ENERGY_SPAN = 20.0  # default extents: the energy where the estimated stationary density falls by e^-20
+
+
+class PathIntegrationWarning(RuntimeWarning):
+    """The path-integration grid is too small or too coarse, or the solve did not converge."""
+
+
+@dataclasses.dataclass(frozen=True)
+class PathIntegration:
+    r"""Numerical settings of ``jdpim.path_integration`` (the physics stays in the ``Scene``).
+
+    Args:
+        n_x, n_v: grid nodes in ``x`` (from the barrier to ``barrier + x_max``, or ``[-x_max, x_max]``
+            without a barrier) and in ``v`` (``[-v_max, v_max]``); ``n_v`` odd puts a node at ``v = 0``.
+        x_max, v_max: grid extents; ``None`` estimates them from the scene: the energy ``H*`` at which the
+            stochastically averaged stationary density ``exp(-(a_e H + b H^2)/D)`` falls by ``e^-20``
+            (``a_e`` = linear damping + ``(1 - r^2)/pi``, ``b = 3 gamma / 4``), ``v_max = sqrt(2 H*)``,
+            ``x_max = v_max / omega``; a start away from rest widens them. Give them explicitly when
+            differentiating with respect to parameters that set them (D, alpha, gamma, r).
+        tau: time step, s (saved times must be multiples of it, counted from the start).
+        substeps: RK4 substeps of the back-trace over one step.
+        order: interpolation points per axis (2: linear, 4: cubic, 6: quintic Lagrange), or ``None``:
+            4, except 2 for a barrier with ``r < 0.5`` (there the outgoing density near ``(barrier, 0)`` is
+            squeezed by ``r`` into a layer thinner than the grid, and only linear weights stay positive).
+        t0: a point-mass start (the scene's ``x0``/``v0``) is replaced by the Gaussian of the system
+            linearised at the start, at time ``t0`` (s, a multiple of ``tau``), folded at the barrier.
+        newton: most Newton steps of the stationary solve (each one GMRES solve); it stops earlier once
+            the L1 residual of a step is below 1e-8 (float64) or 3e-6 (float32).
+        restart, max_restarts: GMRES Krylov dimension and number of restarts per solve.
+        warmup: plain steps before the Newton solve (from the averaged law ``exp(-(a_e H + b H^2)/q)``
+            estimated as for the extents, or a Gaussian when the parameters are traced).
+        leak_tol: largest mass allowed in the outermost node rows before a ``PathIntegrationWarning``.
+
+    Example:
+        >>> import jdpim
+        >>> jdpim.PathIntegration(n_x=61, n_v=121).tau
+        0.05
+    """
+
+    n_x: int = 121
+    n_v: int = 241
+    x_max: float | None = None
+    v_max: float | None = None
+    tau: float = 0.05
+    substeps: int = 2
+    order: int | None = None
+    t0: float = 1.0
+    newton: int = 3
+    restart: int = 60
+    max_restarts: int = 6
+    warmup: int = 200
+    leak_tol: float = 1e-5
+
+    def __post_init__(self):
+        for name, low in (("n_x", 8), ("n_v", 8), ("substeps", 1), ("newton", 1), ("restart", 2)):
+            check_int(name, getattr(self, name), low=low)
+        check_int("max_restarts", self.max_restarts, low=1)
+        check_int("warmup", self.warmup, low=0)
+        if self.order not in (None, 2, 4, 6):
+            raise ValueError(f"order must be 2, 4 or 6 interpolation points per axis, got {self.order!r}")
+        for name in ("x_max", "v_max"):
+            if getattr(self, name) is not None:
+                check_real(name, getattr(self, name), low=0.0, low_open=True)
+        check_real("tau", self.tau, low=0.0, low_open=True)
+        check_real("t0", self.t0, low=0.0, low_open=True)
+        check_real("leak_tol", self.leak_tol, low=0.0)
+        k = self.t0 / self.tau
+        if abs(k - round(k)) > 1e-6 * max(1.0, k):
+            raise ValueError(f"t0={self.t0!r} must be a multiple of tau={self.tau!r}")
+
+
+def _start(scene: Scene) -> tuple:
+    model = scene.model
+    x0 = scene.x0 if scene.x0 is not None else (model.barrier if model.has_barrier else 0.0)
+    return x0, scene.v0
+
+
+def _scalar(name, value) -> float:
+    arr = concrete(value)
+    if arr is None:
+        raise ValueError(
+            f"{name} is traced: give x_max and v_max in jdpim.PathIntegration explicitly "
+            "(the grid extents are static and cannot be derived from traced parameters)"
+        )
+    return float(arr)
+
+
+def averaged_energy_law(scene: Scene) -> tuple[float, float, float, float]:
+    """``(a_e, b, q, k)`` of the averaged stationary law ``exp(-(a_e H + b H^2) / q)``, ``H = (k x^2 + v^2) / 2``.
+
+    ``a_e`` = linear damping at the barrier (or 0) + ``(1 - r^2) / pi``, ``b = 3 gamma / 4`` (reference model
+    only), ``q = h^T D h`` and ``k = g'`` there. Needs concrete parameters; raises ``ValueError`` otherwise.
+    """
+    model = scene.model
+    b = _scalar("barrier", model.barrier) if model.has_barrier else 0.0
+    D = concrete(scene.noise.D)
+    if D is None:
+        _scalar("D", scene.noise.D)
+    a_fn, q_fn = drift_and_diffusion(model, D)
+    q = float(q_fn(jnp.asarray(b), jnp.asarray(0.0)))
+    lin = -float(jax.grad(a_fn, argnums=1)(jnp.asarray(b), jnp.asarray(0.0)))
+    stiff = -float(jax.grad(a_fn, argnums=0)(jnp.asarray(b), jnp.asarray(0.0)))
+    cubic = 0.75 * _scalar("gamma", model.gamma) if isinstance(model, VibroImpactOscillator) and model.gamma else 0.0
+    a_e = lin + ((1 - _scalar("r", model.r) ** 2) / math.pi if model.has_barrier else 0.0)
+    if not (q > 0 and stiff > 0 and (a_e > 0 or cubic > 0)):
+        raise ValueError(
+            "cannot estimate the grid extents for this model (needs noise, a positive stiffness and damping "
+            f"at the start; got q={q:g}, stiffness={stiff:g}, damping={a_e:g}): give x_max and v_max"
+        )
+    return a_e, cubic, q, stiff
+
+
+def default_extents(scene: Scene, settings: PathIntegration) -> tuple[float, float]:
+    """``(x_max, v_max)``: the settings' extents, or estimates from the scene (see ``PathIntegration``)."""
+    if settings.x_max is not None and settings.v_max is not None:
+        return float(settings.x_max), float(settings.v_max)
+    a_e, cubic, q, stiff = averaged_energy_law(scene)
+    c = ENERGY_SPAN * q  # (a_e H + cubic H^2) / q = ENERGY_SPAN
+    H = c / a_e if cubic == 0 else (-a_e + math.sqrt(a_e * a_e + 4 * cubic * c)) / (2 * cubic)
+    v_max = math.sqrt(2 * H)
+    x_max = v_max / math.sqrt(stiff)
+    model = scene.model
+    b = _scalar("barrier", model.barrier) if model.has_barrier else 0.0
+    x0, v0 = _start(scene)
+    x0, v0 = float(np.max(np.abs(concrete(x0) - b))), float(np.max(np.abs(concrete(v0))))
+    x_max = max(x_max, 1.5 * x0 + 0.5 * x_max) if x0 else x_max
+    v_max = max(v_max, 1.5 * v0 + 0.5 * v_max) if v0 else v_max
+    return (settings.x_max or x_max), (settings.v_max or v_max)
+
+
+def _validate(scene: Scene, settings: PathIntegration, initial, stationary: bool) -> None:
+    if not isinstance(scene, Scene):
+        raise TypeError(f"scene must be a jdpim.Scene, got {scene!r}")
+    if not isinstance(settings, PathIntegration):
+        raise TypeError(f"settings must be a jdpim.PathIntegration, got {settings!r}")
+    if not isinstance(scene.model, AbstractOscillator):
+        raise TypeError(f"scene.model must be an oscillator, got {scene.model!r}")
+    if scene.random:
+        raise ValueError(
+            f"path integration does not take random parameters (scene.random={dict(scene.random)!r}); "
+            "use jdpim.dpim or jdpim.monte_carlo"
+        )
+    if scene.model.has_barrier:
+        check_real("r", scene.model.r, low=0.0, low_open=True, high=1.0)
+    if initial is not None and not callable(initial):
+        raise TypeError(f"initial must be a callable (x, v) -> density or None, got {initial!r}")
+    if stationary:
+        return
+    start = 0.0 if initial is not None else settings.t0
+    for t in scene.save_at:
+        k = (t - start) / settings.tau
+        if k < -1e-9 or abs(k - round(k)) > 1e-6 * max(1.0, k):
+            where = "t = 0 (initial density)" if initial is not None else f"t0={settings.t0!r}"
+            raise ValueError(
+                f"saved time {t!r} must be {where} plus a whole number of steps tau={settings.tau!r}; "
+                f"saved times are {list(scene.save_at)}"
+            )
+
+
+def _point_start(scene: Scene, grid, dtype, t0: float, n: int = 200):
+    """Density at ``t0`` of the system linearised at the start point, folded at the barrier with the impact law."""
+    model = scene.model
+    a, q = drift_and_diffusion(model, scene.noise.D)
+    x0, v0 = (jnp.asarray(z, dtype) for z in _start(scene))
+    a0 = a(x0, v0)
+    ax, av = jax.grad(a, argnums=(0, 1))(x0, v0)
+    A = jnp.stack([jnp.stack([jnp.zeros_like(ax), jnp.ones_like(ax)]), jnp.stack([ax, av])])
+    Q = jnp.zeros((2, 2), dtype).at[1, 1].set(2 * q(x0, v0))
+
+    def rhs(state):
+        m, C = state
+        dm = jnp.stack([m[1], a0 + ax * (m[0] - x0) + av * (m[1] - v0)])
+        return dm, A @ C + C @ A.T + Q
+
+    def rk4(state, _):
+        h = t0 / n
+        k1 = rhs(state)
+        k2 = rhs(jax.tree.map(lambda s, k: s + 0.5 * h * k, state, k1))
+        k3 = rhs(jax.tree.map(lambda s, k: s + 0.5 * h * k, state, k2))
+        k4 = rhs(jax.tree.map(lambda s, k: s + h * k, state, k3))
+        return jax.tree.map(lambda s, p, q_, w, z: s + h / 6 * (p + 2 * q_ + 2 * w + z), state, k1, k2, k3, k4), None
+
+    (m, C), _ = jax.lax.scan(rk4, (jnp.stack([x0, v0]), jnp.zeros((2, 2), dtype)), None, length=n)
+    det = C[0, 0] * C[1, 1] - C[0, 1] ** 2
+    X, V = jnp.meshgrid(grid.x, grid.v, indexing="ij")
+
+    def gauss(x, v):
+        dx, dv = x - m[0], v - m[1]
+        return jnp.exp(-0.5 * (C[1, 1] * dx * dx - 2 * C[0, 1] * dx * dv + C[0, 0] * dv * dv) / det) / (
+            2 * jnp.pi * jnp.sqrt(det)
+        )
+
+    if not model.has_barrier:
+        return gauss(X, V), C
+    b = jnp.asarray(model.barrier, dtype)
+    r = jnp.asarray(model.r, dtype)
+    # Gaussian mass beyond the barrier has impacted: from (b - d, v) it went to (b + r d, -r v) (area factor r^2)
+    return gauss(X, V) + gauss(b - (X - b) / r, -V / r) / r**2, C
+
+
+def _edge_mask(n_x: int, n_v: int, has_barrier: bool, dtype):
+    mask = np.zeros((n_x, n_v))
+    mask[-2:, :] = 1.0
+    if not has_barrier:
+        mask[:2, :] = 1.0
+    mask[:, :2] = 1.0
+    mask[:, -2:] = 1.0
+    return jnp.asarray(mask, dtype)
+
+
+def _setup(scene: Scene, settings: PathIntegration, extents):
+    dtype = scene.float_dtype
+    grid = make_grid(scene.model, settings.n_x, settings.n_v, *extents, dtype)
+    D = jnp.asarray(scene.noise.D, dtype)
+    ops = step_operator(
+        scene.model, D, grid, settings.tau, settings.substeps, settings.order, settings.n_x, settings.n_v
+    )
+    weights = ops.area
+    edge = _edge_mask(settings.n_x, settings.n_v, scene.model.has_barrier, dtype) * weights
+    return grid, ops, weights, edge
+
+
+@functools.partial(jax.jit, static_argnames=("settings", "extents", "initial"))
+def _transient(scene: Scene, settings: PathIntegration, extents, initial):
+    grid, ops, weights, edge = _setup(scene, settings, extents)
+    dtype = grid.x.dtype
+    if initial is None:
+        p, _ = _point_start(scene, grid, dtype, settings.t0)
+        start = settings.t0
+    else:
+        X, V = jnp.meshgrid(grid.x, grid.v, indexing="ij")
+        p = jnp.asarray(initial(X, V), dtype)
+        start = 0.0
+    if p.shape != (settings.n_x, settings.n_v):
+        raise ValueError(f"initial(x, v) must return the grid's shape {(settings.n_x, settings.n_v)}, got {p.shape}")
+    p = p / jnp.sum(weights * p)
+    zero = jnp.zeros((), dtype)
+    carry = (p, zero, jnp.sum(edge * p))
+
+    def body(carry, _):
+        p, defect, leak = carry
+        p = ops.step(p)
+        m = jnp.sum(weights * p)
+        p = p / m
+        return (p, defect + jnp.abs(1 - m), jnp.maximum(leak, jnp.sum(edge * p))), None
+
+    steps = [int(round((t - start) / settings.tau)) for t in scene.save_at]
+    outs, done = [], 0
+    for k in steps:
+        if k > done:
+            carry, _ = jax.lax.scan(body, carry, None, length=k - done)
+            done = k
+        outs.append(carry)
+    density, defect, leak = (jnp.stack(z) for z in zip(*outs, strict=True))
+    nan = jnp.full(density.shape[:1], jnp.nan, dtype)
+    times = jnp.asarray(scene.save_at, dtype)
+    none = jnp.zeros(density.shape[:1], dtype)
+    return GridResult(times, density, grid.x, grid.v, defect, leak, nan, nan, none, stationary=False)
+
+
+def _gmres(settings: PathIntegration, matvec, b):
+    tol = 1e-7 if b.dtype == jnp.float64 else 1e-5
+    x, _ = gmres(matvec, b, tol=tol, restart=settings.restart, maxiter=settings.max_restarts)
+    return x
+
+
+@functools.partial(jax.jit, static_argnames=("settings", "extents", "law"))
+def _stationary(scene: Scene, settings: PathIntegration, extents, law):
+    grid, ops, weights, edge = _setup(scene, settings, extents)
+    X, V = jnp.meshgrid(grid.x, grid.v, indexing="ij")
+    centre = grid.x[0] if scene.model.has_barrier else 0.0
+    if law is None:  # a Gaussian as wide as the grid allows
+        law = (2 * ENERGY_SPAN / extents[1] ** 2, 0.0, 1.0, (extents[1] / extents[0]) ** 2)
+    a_e, cubic, q, stiff = law
+    H = 0.5 * (stiff * (X - centre) ** 2 + V**2)
+    guess = jnp.exp(-(a_e * H + cubic * H * H) / q)  # the averaged stationary law: a close start
+    guess = guess / jnp.sum(weights * guess)
+
+    def normalised_step(ops: StepOperator, p):
+        q = ops.step(p)
+        return q / jnp.sum(weights * q)
+
+    def residual(p):
+        return normalised_step(ops, p) - p
+
+    tol = 1e-8 if guess.dtype == jnp.float64 else 3e-6  # L1 residual of one step at which Newton stops
+
+    def solve(f, p):
+        p = jax.lax.fori_loop(0, settings.warmup, lambda _, p: normalised_step(ops, p), p)
+
+        def newton(carry):
+            k, p, _ = carry
+            r, jvp = jax.linearize(f, p)
+            p = p + _gmres(settings, jvp, -r)
+            return k + 1, p, jnp.sum(weights * jnp.abs(f(p)))
+
+        first = jnp.sum(weights * jnp.abs(f(p)))
+        zero = jnp.zeros((), p.dtype)  # a float count: custom_root gives its aux a tangent
+        k, p, _ = jax.lax.while_loop(lambda c: (c[0] < settings.newton) & (c[2] > tol), newton, (zero, p, first))
+        return p, k
+
+    def tangent_solve(g, y):
+        return jax.lax.custom_linear_solve(
+            g, y, solve=functools.partial(_gmres, settings), transpose_solve=functools.partial(_gmres, settings)
+        )
+
+    p, newton_steps = jax.lax.custom_root(residual, guess, solve, tangent_solve, has_aux=True)
+    p_ = jax.lax.stop_gradient(p)
+    q = ops.step(p_)
+    gain = jnp.sum(weights * q)
+    res = jnp.sum(weights * jnp.abs(q / gain - p_))
+    dtype = grid.x.dtype
+    one = jnp.ones((1,), dtype)
+    return GridResult(
+        jnp.full((1,), jnp.inf, dtype),
+        p[None],
+        grid.x,
+        grid.v,
+        one * jnp.abs(1 - gain),
+        one * jnp.sum(edge * p_),
+        one * res,
+        one * gain,
+        jnp.reshape(jax.lax.stop_gradient(newton_steps), (1,)),
+        stationary=True,
+    )
+
+
+def path_integration(
+    scene: Scene,
+    settings: PathIntegration | None = None,
+    stationary: bool = False,
+    *,
+    initial: Callable | None = None,
+) -> GridResult:
+    r"""Response densities of a one-degree-of-freedom scene by path integration on a phase-space grid.
+
+    Solves the Fokker-Planck equation of ``x'' + g(x) + f(x, x') = h(x, x') . xi(t)`` on
+    ``x >= barrier`` with the impact law ``x'_+ = -r x'_-`` (white noise ``E[xi xi^T] = 2 D delta``,
+    Stratonovich gains) by a mass-conservative splitting step on a grid (see ``docs/path_integration.md``),
+    with renormalisation after each step (the defect is reported as ``mass_defect``).
+
+    Args:
+        scene: the physics: model, noise, start ``x0``/``v0`` (a point mass, see ``PathIntegration.t0``),
+            ``save_at`` (multiples of ``tau`` after the start) and ``dtype``. Random parameters are not
+            supported. The scene's ``dt``, excitation and impact settings are not used.
+        settings: ``jdpim.PathIntegration`` (default: ``PathIntegration()``).
+        stationary: solve for the stationary density instead (``t`` may then be left out everywhere).
+        initial: a density ``initial(x, v)`` at ``t = 0`` (vectorised over node arrays of shape
+            ``(n_x, n_v)``, JAX-traceable) instead of the point-mass start; renormalised on the grid.
+
+    Returns:
+        a ``jdpim.GridResult`` (``.pdf``, ``.joint_pdf``, ``.moment``, ``.mass``, ``.mass_defect``, ...).
+        A ``PathIntegrationWarning`` is issued when mass reaches the grid's edges, the renormalisation
+        defect is large, the solve did not converge, or densities are not finite.
+
+    Example:
+        >>> import jdpim
+        >>> scene = jdpim.Scene(jdpim.VibroImpactOscillator(alpha=0.1, gamma=None, r=1.0),
+        ...                     noise=jdpim.WhiteNoise(D=0.01), t_end=2.0, dt=0.1)
+        >>> res = jdpim.path_integration(scene, jdpim.PathIntegration(n_x=61, n_v=121, tau=0.1))
+        >>> round(float(res.mass(t=2.0)), 4)
+        1.0
+    """
+    settings = PathIntegration() if settings is None else settings
+    _validate(scene, settings, initial, stationary)
+    extents = default_extents(scene, settings)
+    if settings.order is None:
+        r = concrete(scene.model.r) if scene.model.has_barrier else None
+        settings = dataclasses.replace(settings, order=2 if r is not None and float(np.max(r)) < 0.5 else 4)
+    _check_resolution(scene, settings, extents, point_start=initial is None and not stationary)
+    if stationary:
+        try:
+            law = averaged_energy_law(scene)
+        except (ValueError, TypeError, jax.errors.ConcretizationTypeError):  # traced or not estimable: a Gaussian
+            law = None
+        res = _stationary(scene, settings, extents, law)
+    else:
+        res = _transient(scene, settings, extents, initial)
+    _report(res, settings)
+    return res
+
+
+def _check_resolution(scene: Scene, settings: PathIntegration, extents, point_start: bool) -> None:
+    """Warn when the grid cannot resolve the diffusion of one step or the Gaussian of a point start."""
+    model, D = scene.model, concrete(scene.noise.D)
+    b = concrete(model.barrier) if model.has_barrier else np.zeros(())
+    if D is None or b is None:
+        return  # traced: nothing to check here
+    _, q_fn = drift_and_diffusion(model, D)
+    q = float(q_fn(jnp.asarray(float(b)), jnp.asarray(0.0)))
+    span_x = extents[0] if model.has_barrier else 2 * extents[0]
+    dx, dv = span_x / (settings.n_x - 1), 2 * extents[1] / (settings.n_v - 1)
+    problems = []
+    if math.sqrt(q * settings.tau) < 0.6 * dv:  # below that the sampled kernel loses its variance
+        problems.append(
+            f"the half-step diffusion (sd sqrt(q tau) = {math.sqrt(q * settings.tau):.3g}) is below 0.6 times "
+            f"the velocity spacing dv = {dv:.3g}: raise n_v or tau"
+        )
+    if point_start:
+        sx, sv = math.sqrt(2 * q * settings.t0**3 / 3), math.sqrt(2 * q * settings.t0)
+        if sx < 1.5 * dx or sv < 1.5 * dv:
+            problems.append(
+                f"the start density at t0 = {settings.t0:g} (sd {sx:.3g} in x, {sv:.3g} in v) is narrower than 1.5 "
+                f"grid spacings (dx = {dx:.3g}, dv = {dv:.3g}): raise n_x/n_v or t0"
+            )
+    if problems:
+        warnings.warn("path integration: grid too coarse: " + "; ".join(problems), PathIntegrationWarning, stacklevel=3)
+
+
+def _report(res: GridResult, settings: PathIntegration) -> None:
+    leak, defect = concrete(res.edge_mass), concrete(res.mass_defect)
+    if leak is None or defect is None:
+        return  # traced: nothing to inspect here
+    bad = int(np.sum(concrete(res.n_nonfinite())))
+    problems = []
+    if bad:
+        problems.append(f"{bad} non-finite nodal densities")
+    if np.max(leak) > settings.leak_tol:
+        problems.append(
+            f"mass {np.max(leak):.2e} reached the grid's edges (> leak_tol={settings.leak_tol:g}): enlarge x_max/v_max"
+        )
+    if np.max(defect) > 1e-2:
+        problems.append(f"renormalisation defect {np.max(defect):.2e} (> 1e-2): refine the grid or the step tau")
+    residual = concrete(res.residual)
+    if res.stationary and not np.all(residual <= 1e-3):
+        problems.append(f"stationary solve residual {float(residual[0]):.2e} (> 1e-3): raise newton or restart")
+    if problems:
+        warnings.warn("path integration: " + "; ".join(problems), PathIntegrationWarning, stacklevel=3)

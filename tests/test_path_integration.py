@@ -1,0 +1,189 @@
+"""Path integration: exact r = 1 solutions, mass conservation at small r, implicit gradients, bad inputs.
+
+Grids are small (compile time dominates); float64 runs inside ``jax.enable_x64`` so nothing leaks.
+"""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jdpim
+from jdpim import exact, metrics
+
+ALPHA, D = 0.1, 0.01
+SMALL = jdpim.PathIntegration(n_x=61, n_v=121, tau=0.1)
+XG, VG = np.linspace(0.0, 2.0, 401), np.linspace(-2.0, 2.0, 801)
+
+
+def elastic(dtype="float64", **kw):
+    model = jdpim.VibroImpactOscillator(alpha=ALPHA, gamma=None, r=1.0)
+    kw.setdefault("noise", jdpim.WhiteNoise(D=D))
+    return jdpim.Scene(model, t_end=20.0, dt=0.1, dtype=dtype, **kw)
+
+
+def errors(res, t, t_exact):
+    return (
+        metrics.l1(np.asarray(res.pdf("x", XG, t)), exact.elastic_linear_pdf_x(XG, ALPHA, D, t_exact), XG),
+        metrics.l1(np.asarray(res.pdf("v", VG, t)), exact.elastic_linear_pdf_v(VG, ALPHA, D, t_exact), VG),
+        metrics.l1(
+            np.asarray(res.joint_pdf(XG, VG, t)), exact.elastic_linear_joint_pdf(XG, VG, ALPHA, D, t_exact), (XG, VG)
+        ),
+    )
+
+
+@pytest.fixture(scope="module")
+def stationary64():
+    """Values of the float64 stationary solve, taken inside the x64 context (plain NumPy outside it)."""
+    with jax.enable_x64(True):
+        res = jdpim.path_integration(elastic(), SMALL, stationary=True)
+        return {
+            "errors": errors(res, None, np.inf),
+            "residual": float(res.residual[0]),
+            "gain": float(res.step_gain[0]),
+            "ex2": float(res.moment("x", 2)),
+            "mass": float(res.mass()),
+            "pdf_x": np.asarray(res.pdf("x", XG)),
+        }
+
+
+def test_elastic_stationary_matches_exact(stationary64):
+    ex, ev, ej = stationary64["errors"]
+    assert ex <= 1e-3 and ev <= 1e-3 and ej <= 3e-3, (ex, ev, ej)
+    assert stationary64["residual"] < 1e-8
+    assert abs(stationary64["gain"] - 1) < 1e-6  # mass-conservative step
+    assert stationary64["ex2"] == pytest.approx(D / ALPHA, rel=2e-3)
+    assert stationary64["mass"] == pytest.approx(1.0, abs=1e-9)
+
+
+def test_elastic_transient_from_rest_matches_exact():
+    with jax.enable_x64(True):
+        res = jdpim.path_integration(elastic(save_at=(5.0, 20.0)), SMALL)
+        for t in (5.0, 20.0):
+            assert max(errors(res, t, t)) <= 5e-3, (t, errors(res, t, t))
+        assert np.all(np.asarray(res.mass_defect) < 1e-6)
+
+
+def test_user_initial_density_stationary_stays():
+    """The exact stationary density given as the start stays put (up to the scheme's own stationary error)."""
+    sx2 = D / ALPHA
+
+    def start(x, v):
+        return jnp.exp(-0.5 * (x * x + v * v) / sx2)
+
+    with jax.enable_x64(True):
+        res = jdpim.path_integration(elastic(save_at=(10.0,)), SMALL, initial=start)
+        assert max(errors(res, 10.0, np.inf)) <= 2e-3
+
+
+def test_float32_agrees_with_float64(stationary64):
+    res32 = jdpim.path_integration(elastic("float32"), SMALL, stationary=True)
+    assert res32.density.dtype == jnp.float32
+    assert metrics.l1(np.asarray(res32.pdf("x", XG)), stationary64["pdf_x"], XG) < 1e-4
+
+
+@pytest.mark.parametrize("r", [0.3, 0.05])
+def test_small_restitution_conserves_mass(r):
+    model = jdpim.VibroImpactOscillator(alpha=0.03, gamma=0.03, r=r)
+    scene = jdpim.Scene(model, noise=jdpim.WhiteNoise(D=0.03), t_end=10.0, dt=0.1, save_at=(10.0,))
+    settings = jdpim.PathIntegration(n_x=41, n_v=81, x_max=1.8, v_max=1.8, tau=0.1)
+    res = jdpim.path_integration(scene, settings)
+    p = np.asarray(res.density)
+    assert np.all(np.isfinite(p)) and int(res.n_nonfinite()[0]) == 0
+    assert float(res.mass_defect[0]) < 1e-3  # summed over the 100 steps: the step conserves mass
+    assert float(res.mass(10.0)) == pytest.approx(1.0, abs=1e-5)
+    assert float(np.asarray(res.x)[0]) == 0.0  # the grid starts at the barrier: nothing below it
+    assert float(res.pdf("x", np.array([-0.2, -0.1]), 10.0)[0]) == 0.0
+    neg = -np.sum(np.minimum(p, 0)) * float(res.x[1] - res.x[0]) * float(res.v[1] - res.v[0])
+    assert neg < 1e-3
+
+
+def _stationary_features(theta, settings):
+    alpha, gamma, r, d, b = theta
+    model = jdpim.VibroImpactOscillator(alpha=alpha, gamma=gamma, r=r, barrier=b)
+    scene = jdpim.Scene(model, noise=jdpim.WhiteNoise(D=d), t_end=10.0, dt=0.1, dtype="float64")
+    res = jdpim.path_integration(scene, settings, stationary=True)
+    return jnp.concatenate([res.moment("x", 2)[None], res.pdf("x", jnp.array([0.3, 0.8]) + b)])
+
+
+GRAD_SETTINGS = jdpim.PathIntegration(n_x=61, n_v=121, x_max=2.5, v_max=2.5, tau=0.1)
+
+
+def _central(f, theta, n=5, eps=1e-4):
+    cols = [(np.asarray(f(theta.at[i].add(eps))) - np.asarray(f(theta.at[i].add(-eps)))) / (2 * eps) for i in range(n)]
+    return np.stack(cols, axis=-1)
+
+
+def test_stationary_grad_matches_central_differences():
+    """Reverse mode through the implicit (custom_root) solve: one adjoint GMRES solve for all five parameters."""
+    settings = jdpim.PathIntegration(n_x=41, n_v=81, x_max=2.5, v_max=2.5, tau=0.2)
+    with jax.enable_x64(True):
+        theta = jnp.array([0.05, 0.05, 0.87, 0.03, 0.1])  # alpha, gamma, r, D, barrier
+        f = jax.jit(lambda th: _stationary_features(th, settings)[0])
+        grad = np.asarray(jax.grad(f)(theta))[:4]
+        fd = _central(f, theta, n=4)  # the barrier moves this coarse grid: see the slow test for it
+    assert np.max(np.abs(grad - fd) / (np.abs(fd) + 1e-2)) < 1e-3, (grad, fd)
+
+
+@pytest.mark.slow
+def test_stationary_jacfwd_matches_central_differences():
+    with jax.enable_x64(True):
+        theta = jnp.array([0.05, 0.05, 0.87, 0.03, 0.1])
+        f = jax.jit(lambda th: _stationary_features(th, GRAD_SETTINGS))
+        jac = np.asarray(jax.jacfwd(f)(theta))
+        fd = _central(f, theta)
+    assert np.max(np.abs(jac - fd) / (np.abs(fd) + 1e-2)) < 1e-3, (jac, fd)
+
+
+@pytest.mark.slow
+def test_transient_gradient_through_scan():
+    settings = jdpim.PathIntegration(n_x=61, n_v=121, x_max=2.4, v_max=2.4, tau=0.2, t0=1.0)
+
+    def second_moment(alpha):
+        model = jdpim.VibroImpactOscillator(alpha=alpha, gamma=None, r=0.8)
+        scene = jdpim.Scene(model, noise=jdpim.WhiteNoise(D=D), t_end=4.0, dt=0.2, save_at=(4.0,), dtype="float64")
+        return jdpim.path_integration(scene, settings).moment("x", 2, 4.0)
+
+    with jax.enable_x64(True):
+        g = float(jax.grad(second_moment)(0.1))
+        fd = float((second_moment(0.1 + 1e-5) - second_moment(0.1 - 1e-5)) / 2e-5)
+    assert g == pytest.approx(fd, rel=1e-4)
+
+
+def test_too_coarse_grid_is_reported():
+    with pytest.warns(jdpim.PathIntegrationWarning, match="too coarse"):
+        jdpim.path_integration(elastic("float32", save_at=(5.0,)), jdpim.PathIntegration(n_x=11, n_v=21, tau=0.1))
+
+
+def test_too_small_grid_is_reported():
+    settings = jdpim.PathIntegration(n_x=21, n_v=41, x_max=0.3, v_max=0.3, tau=0.1)
+    with pytest.warns(jdpim.PathIntegrationWarning, match="edges"):
+        jdpim.path_integration(elastic("float32", save_at=(5.0,)), settings)
+
+
+def test_bad_inputs_are_named():
+    with pytest.raises(ValueError, match="n_x"):
+        jdpim.PathIntegration(n_x=3)
+    with pytest.raises(ValueError, match="order"):
+        jdpim.PathIntegration(order=3)
+    with pytest.raises(ValueError, match="tau"):
+        jdpim.PathIntegration(tau=-0.1)
+    with pytest.raises(ValueError, match="t0"):
+        jdpim.PathIntegration(t0=0.13)
+    with pytest.raises(ValueError, match="saved time"):
+        jdpim.path_integration(elastic("float32", save_at=(5.0,)), jdpim.PathIntegration(tau=0.3, t0=0.3))
+    with pytest.raises(ValueError, match="r must lie"):
+        scene = jdpim.Scene(jdpim.VibroImpactOscillator(r=0.0), noise=jdpim.WhiteNoise(D=D), t_end=2.0, dt=0.1)
+        jdpim.path_integration(scene, SMALL)
+    with pytest.raises(ValueError, match="random parameters"):
+        jdpim.path_integration(elastic("float32", random={"alpha": jdpim.Uniform(0.05, 0.15)}), SMALL)
+    with pytest.raises(TypeError, match="settings"):
+        jdpim.path_integration(elastic("float32"), settings="fine")
+    with pytest.raises(TypeError, match="initial"):
+        jdpim.path_integration(elastic("float32"), SMALL, initial=np.ones((61, 121)))
+    with pytest.raises(ValueError, match="x_max and v_max"):
+        jax.grad(
+            lambda d: jdpim.path_integration(elastic("float32", noise=jdpim.WhiteNoise(D=d)), SMALL).moment(
+                "x", 2, 20.0
+            )
+        )(0.01)
