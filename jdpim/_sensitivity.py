@@ -332,25 +332,30 @@ def _pathwise(scene, names, estimators, var, grid, t, values, bandwidth, rule, m
     jac = jax.jacfwd if est.mode == "forward" else jax.jacrev
     sub = {n: values[n] for n in names}
     out, p = jac(pdf_of, has_aux=True)(sub)
-    if scene.model.has_barrier and t > min(estimators[n].horizon for n in names):
+    pathwise_guard(scene.model.has_barrier, t, min(estimators[n].horizon for n in names), values, out, p)
+    return out
+
+
+def pathwise_guard(has_barrier: bool, t: float, horizon: float, values: dict, derivatives: dict, pdf) -> None:
+    """Warn (:class:`SensitivityWarning`) about pathwise derivatives past the horizon or exploding."""
+    if has_barrier and t > horizon:
         warnings.warn(
-            f"pathwise derivatives at t = {t:g} s (beyond the Pathwise horizon) through impacts are not reliable: "
-            "tangents grow without bound across impacts; use estimator='auto' (likelihood ratio, noise scaling, "
-            "central differences)",
+            f"pathwise derivatives at t = {t:g} s (beyond the Pathwise horizon {horizon:g} s) through impacts are "
+            "not reliable: tangents grow without bound across impacts; use estimator='auto' (likelihood ratio, "
+            "noise scaling, central differences)",
             SensitivityWarning,
-            stacklevel=3,
+            stacklevel=4,
         )
-    pmax = float(jnp.max(jnp.abs(p)))
-    for n in names:
-        scale = float(jnp.max(jnp.abs(out[n]))) * max(abs(float(values[n])), 1e-12)
+    pmax = float(jnp.max(jnp.abs(pdf)))
+    for n, d in derivatives.items():
+        scale = float(jnp.max(jnp.abs(d))) * max(abs(float(values[n])), 1e-12)
         if not scale <= EXPLOSION * pmax:
             warnings.warn(
                 f"pathwise dp/d{n} explodes (max |{n} dp/d{n}| = {scale:.3g} against max p = {pmax:.3g}); "
                 "use estimator='auto'",
                 SensitivityWarning,
-                stacklevel=3,
+                stacklevel=4,
             )
-    return out
 
 
 def _sampled(scene, names, estimators, var, grid, t, bandwidth, rule, method, rows, weights, chunk):
