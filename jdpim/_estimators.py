@@ -61,7 +61,8 @@ class LikelihoodRatio:
 
     Args:
         window: length ``tau`` in s of the score window, or ``None`` for ``4 / alpha`` (the truncation bias
-            decays like ``exp(-alpha tau)``), or the whole history when the model has no positive ``alpha``.
+            decays like ``exp(-alpha tau)``; ``alpha`` is the model's field or ``Oscillator.params["alpha"]``),
+            or the whole history when there is no positive ``alpha``.
             For ``t <= tau`` the whole history is used (exact from a deterministic start).
         ito_correction: subtract the Wong-Zakai term ``c D sum h d_v(d_theta b / h) dt``; the fraction
             ``c = 1 - Var(dW) / (2 D dt)`` (about 0.43 at the default cutoff ``2 / dt``) measures how far
@@ -205,6 +206,8 @@ def window_of(estimator: LikelihoodRatio, model) -> float:
     if estimator.window is not None:
         return float(estimator.window)
     alpha = getattr(model, "alpha", None)
+    if isinstance(model, Oscillator) and isinstance(model.params, dict):
+        alpha = model.params.get("alpha")
     try:
         alpha = float(alpha)
     except (TypeError, ValueError):

@@ -1,4 +1,5 @@
-"""``python -m jdpim.bench {accuracy,budget,speed} [--quick] [--out DIR]``: accuracy vs time, error budget, speed."""
+"""``python -m jdpim.bench {accuracy,budget,speed,sensitivity} [--quick] [--out DIR]``: accuracy vs time, error
+budget, speed, sensitivity estimators."""
 
 from __future__ import annotations
 
@@ -22,6 +23,9 @@ def main(argv=None) -> int:
     speed = sub.add_parser("speed", help="wall and compile times, split, memory, against a NumPy RK4 MCS")
     speed.add_argument("--quick", action="store_true", help="float32 only, MCS 1e4 only")
     speed.add_argument("--out", type=pathlib.Path, default=pathlib.Path("jdpim_out/bench"))
+    sens = sub.add_parser("sensitivity", help="sensitivity estimators: error against exact derivatives versus cost")
+    sens.add_argument("--quick", action="store_true", help="short horizons and few paths: a few minutes on 2 cores")
+    sens.add_argument("--out", type=pathlib.Path, default=pathlib.Path("jdpim_out/bench"))
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
     if args.command == "accuracy":
         from .accuracy import QUICK, Sweep, sweep, write
@@ -43,6 +47,10 @@ def main(argv=None) -> int:
         from .speed import run_speed
 
         files = run_speed(args.out, quick=args.quick, log=lambda s: print(s, flush=True))
+    elif args.command == "sensitivity":
+        from .sensitivity import run_sensitivity
+
+        files = run_sensitivity(args.out, quick=args.quick, log=lambda s: print(s, flush=True))
     else:
         from .budget import run_budget
 
