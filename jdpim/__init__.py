@@ -10,6 +10,11 @@ from ._density import kde as kde
 from ._density import kde_2d as kde_2d
 from ._distributions import Normal as Normal
 from ._distributions import Uniform as Uniform
+from ._estimators import CentralDifference as CentralDifference
+from ._estimators import LikelihoodRatio as LikelihoodRatio
+from ._estimators import NoiseScaling as NoiseScaling
+from ._estimators import Pathwise as Pathwise
+from ._estimators import SensitivityWarning as SensitivityWarning
 from ._excitation import SpectralRepresentation as SpectralRepresentation
 from ._integrate import ImpactRule as ImpactRule
 from ._integrate import Substeps as Substeps
@@ -27,6 +32,7 @@ from ._points import gf_discrepancy as gf_discrepancy
 from ._points import select_points as select_points
 from ._result import Result as Result
 from ._scene import Scene as Scene
+from ._sensitivity import Sensitivity as Sensitivity
 from ._sensitivity import parameter_names as parameter_names
 from ._sensitivity import sensitivity as sensitivity
 from ._sensitivity import with_parameters as with_parameters

@@ -112,3 +112,66 @@ def test_accumulator_sums_the_noise_increments():
     incr = h / 6 * (e[0:-1:2] + 4 * e[1::2] + e[2::2])  # Simpson's rule per step
     np.testing.assert_allclose(np.asarray(sums[:, :, 0]).T, np.cumsum(incr, axis=0)[[4, 9]], rtol=1e-5, atol=1e-6)
     np.testing.assert_allclose(np.asarray(sums[:, :, 1]), [[5, 10]] * n)
+
+
+@pytest.mark.slow
+def test_elastic_impacts_at_stationarity():
+    """r = 1, gamma = 0, barrier at 0, from rest, t = 200 (about 3 minutes on a loaded 2-core machine).
+
+    Measured (2e4 paths, alpha = D = 0.05, h = 0.1): relative L2 error 0.073 for alpha (standard error 0.052),
+    0.117 for D (standard error 0.126).
+    """
+    alpha, d, t, h = 0.05, 0.05, 200.0, 0.1
+    xs = np.linspace(0.0, 3.0, 61)
+    scene = jdpim.Scene(
+        jdpim.VibroImpactOscillator(alpha=alpha, gamma=None, r=1.0), noise=jdpim.WhiteNoise(D=d), t_end=t, dt=0.02
+    )
+    out = jdpim.sensitivity(scene, ("alpha", "D"), "x", xs, method="monte_carlo", n_samples=20_000, bandwidth=h)
+    assert isinstance(out.estimators["alpha"], LikelihoodRatio) and isinstance(out.estimators["D"], NoiseScaling)
+    for name, (a, dd) in {
+        "alpha": ((alpha + 1e-6, d), (alpha - 1e-6, d)),
+        "D": ((alpha, d + 1e-6), (alpha, d - 1e-6)),
+    }.items():
+        ref = []
+        for aa, ddd in (a, dd):
+            s2 = exact.linear_covariance(aa, ddd, t)[0] + h**2
+            ref.append(2 * np.exp(-0.5 * xs**2 / s2) / np.sqrt(2 * np.pi * s2))
+        ref = (ref[0] - ref[1]) / 2e-6
+        rel = np.linalg.norm(out[name] - ref) / np.linalg.norm(ref)
+        rel_err = np.linalg.norm(out.stderr[name]) / np.linalg.norm(ref)
+        assert rel < max(3 * rel_err, 0.05), name
+
+
+@pytest.mark.slow
+def test_energy_dependent_damping_beta():
+    """``(alpha + beta H) x'``, r = 1: exact stationary density ``exp(-(alpha H + beta H^2 / 2) / D)``.
+
+    Checks the Ito correction of the score: measured at t = 100, 2e4 paths, window 40 s: relative L2
+    error 0.073 (standard error 0.081); 0.28 without the correction, 0.39 with the full Wong-Zakai term.
+    """
+    alpha, beta, d, t, h = 0.05, 0.05, 0.05, 100.0, 0.1
+    xs = np.linspace(0.0, 3.0, 61)
+    model = jdpim.Oscillator(
+        params={"alpha": alpha, "beta": beta},
+        g=lambda x, p: x,
+        f=lambda x, v, p: (p["alpha"] + p["beta"] * (0.5 * v**2 + 0.5 * x**2)) * v,
+        r=1.0,
+    )
+    scene = jdpim.Scene(model, noise=jdpim.WhiteNoise(D=d), t_end=t, dt=0.02)
+    u, vv = np.linspace(0, 8, 2001), np.linspace(-8, 8, 2001)
+
+    def reference(b):
+        X, V = np.meshgrid(u, vv, indexing="ij")
+        H_ = 0.5 * X**2 + 0.5 * V**2
+        px = np.trapezoid(np.exp(-(alpha * H_ + b * H_**2 / 2) / d), vv, axis=1)
+        px /= np.trapezoid(px, u)
+        z = lambda s: np.exp(-0.5 * (s / h) ** 2) / (h * np.sqrt(2 * np.pi))  # noqa: E731
+        return np.trapezoid((z(xs[:, None] - u) + z(xs[:, None] + u)) * px, u, axis=1)
+
+    ref = (reference(beta + 1e-5) - reference(beta - 1e-5)) / 2e-5
+    est = LikelihoodRatio(window=40.0)
+    out = jdpim.sensitivity(
+        scene, ("beta",), "x", xs, method="monte_carlo", n_samples=20_000, bandwidth=h, estimator=est
+    )
+    rel = np.linalg.norm(out["beta"] - ref) / np.linalg.norm(ref)
+    assert rel < max(3 * np.linalg.norm(out.stderr["beta"]) / np.linalg.norm(ref), 0.05)
