@@ -27,7 +27,7 @@ from .._noise import WhiteNoise
 from .._scene import Scene
 from .._sensitivity import sensitivity
 
-ALPHA, D, DT, H = 0.05, 0.05, 0.02
+ALPHA, D, DT, H = 0.05, 0.05, 0.02, 0.1
 XS = np.linspace(0.0, 3.0, 61)
 
 
