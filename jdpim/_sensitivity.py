@@ -85,7 +85,7 @@ def _nominal(scene: Scene, name: str):
     return jnp.asarray(value, scene.float_dtype)
 
 
-@dataclasses.dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True, eq=False)
 class Sensitivity(Mapping):
     """Derivatives ``name -> dp/dtheta`` on the grid (a read-only mapping), with standard errors.
 
