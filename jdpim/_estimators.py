@@ -93,8 +93,10 @@ class CentralDifference:
     """Central differences with common random numbers (the same seed or the same point set).
 
     Args:
-        step: half step ``d`` (> 0) in parameter units, or ``None`` for ``0.01`` for ``r`` and ``1e-2 max(|theta|,
-            1e-2)`` otherwise. Near a bound (``r <= 1``, ``alpha >= 0``) the pair is shifted inside it.
+        step: half step ``d`` (> 0) in parameter units, or ``None`` for ``0.01`` for ``r`` and ``0.05 max(|theta|,
+            1e-2)`` otherwise. Near a bound (``r <= 1``, ``alpha >= 0``) the pair is shifted inside it. Paths that
+            switch (stick or not, graze or not) make per-path differences jump, with a variance ~ 1/d: a 1 %
+            step gave a standard error of 4.9 (relative) for dp/dalpha at t = 10 from rest with 2000 paths.
     """
 
     step: float | None = None
@@ -105,7 +107,7 @@ class CentralDifference:
 
     def pair(self, name: str, value: float) -> tuple[float, float]:
         """The two parameter values ``(lo, hi)`` of the difference, inside the parameter's range."""
-        d = self.step if self.step is not None else (0.01 if name == "r" else 1e-2 * max(abs(value), 1e-2))
+        d = self.step if self.step is not None else (0.01 if name == "r" else 0.05 * max(abs(value), 1e-2))
         low, high = {"r": (0.0, 1.0), "alpha": (0.0, math.inf), "gamma": (0.0, math.inf), "D": (0.0, math.inf)}.get(
             name, (-math.inf, math.inf)
         )
