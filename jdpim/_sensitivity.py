@@ -47,7 +47,7 @@ from ._scene import Scene
 NOISE_PARAMETERS = ("D",)
 VARIABLES = ("x", "v", "xv")
 METHODS = ("dpim", "monte_carlo")
-DEFAULT_PATHS = {"dpim": 1000, "monte_carlo": 10_000}
+DEFAULT_PATHS = {"dpim": 1000, "monte_carlo": 100_000}
 STDERR_WARN = 0.25  # relative L2 standard error above which a result is flagged
 EXPLOSION = 1e3  # |theta dp/dtheta| / max p above which a pathwise result is flagged
 _CHUNK = 512
