@@ -79,6 +79,20 @@ def test_auto_and_the_result_object(free):
     assert np.all(np.isnan(dp.stderr["alpha"]))
 
 
+def test_joint_derivative_integrates_to_the_marginal(free):
+    """Same paths, same kernels: integrating ``dp(x, v)`` over ``v`` gives ``dp(x)`` up to quadrature."""
+    scene, lr, _ = free
+    vg = np.linspace(-2.5, 2.5, 101)
+    est = {"alpha": LikelihoodRatio(), "D": NoiseScaling()}
+    joint = jdpim.sensitivity(
+        scene, ("alpha", "D"), "xv", (XS, vg), method="monte_carlo", n_samples=4000, bandwidth=(H, H), estimator=est
+    )
+    for name in ("alpha", "D"):
+        assert joint[name].shape == (XS.size, vg.size) and np.all(np.isfinite(joint.stderr[name]))
+        marginal = np.trapezoid(np.asarray(joint[name]), vg, axis=1)
+        np.testing.assert_allclose(marginal, lr[name], atol=2e-3 * np.abs(lr[name]).max())
+
+
 def test_large_standard_errors_are_flagged(free):
     scene, _, _ = free
     with pytest.warns(SensitivityWarning, match="standard error"):
