@@ -264,6 +264,10 @@ def sensitivity(
         raise ValueError(f"var must be one of {VARIABLES}, got {var!r}")
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    if method == "dpim" and n_samples is not None:
+        raise ValueError("n_samples is for method='monte_carlo'; use n_points or points with method='dpim'")
+    if method == "monte_carlo" and (n_points is not None or points is not None):
+        raise ValueError("n_points and points are for method='dpim'; use n_samples with method='monte_carlo'")
     if isinstance(bandwidth, str) and bandwidth != "adaptive":
         raise ValueError(f"bandwidth must be None, 'adaptive' or a number, got {bandwidth!r}")
     wrt = tuple(wrt)
