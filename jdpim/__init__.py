@@ -11,6 +11,11 @@ from ._density import kde_2d as kde_2d
 from ._density import kde_stderr as kde_stderr
 from ._distributions import Normal as Normal
 from ._distributions import Uniform as Uniform
+from ._estimators import CentralDifference as CentralDifference
+from ._estimators import LikelihoodRatio as LikelihoodRatio
+from ._estimators import NoiseScaling as NoiseScaling
+from ._estimators import Pathwise as Pathwise
+from ._estimators import SensitivityWarning as SensitivityWarning
 from ._excitation import SpectralRepresentation as SpectralRepresentation
 from ._grid_result import GridResult as GridResult
 from ._integrate import ImpactRule as ImpactRule
@@ -34,6 +39,7 @@ from ._replicates import dpim_replicates as dpim_replicates
 from ._replicates import randomised_points as randomised_points
 from ._result import Result as Result
 from ._scene import Scene as Scene
+from ._sensitivity import Sensitivity as Sensitivity
 from ._sensitivity import parameter_names as parameter_names
 from ._sensitivity import sensitivity as sensitivity
 from ._sensitivity import with_parameters as with_parameters

@@ -319,6 +319,7 @@ def integrate(
     n_save: int,
     initial_slot: int,
     substeps: Substeps | None = None,
+    accumulate=None,
 ):
     """Integrate a batch of paths over the whole time grid and keep only the saved states.
 
@@ -333,9 +334,14 @@ def integrate(
         n_save: number of saved times. Slot ``n_save`` is a scratch row.
         initial_slot: the save slot of ``t = 0`` (``n_save`` if not saved).
         substeps: sub-stepping of stiff steps, or ``None`` for none.
+        accumulate: ``None``, or ``(model, x, v, dw) -> (k,)`` for one path: the increments of ``k``
+            running sums ``A``, from the state ``(x, v)`` at the start of each step and its noise
+            increment ``dw = h/6 (e_0 + 4 e_1/2 + e_1)`` (shape ``(m,)``, Simpson's rule of the forcing).
+            ``A(0) = 0``; ``A`` is stored at the save slots like the states.
 
     Returns:
-        shape ``(n, n_save, 2)``: ``(x, v)`` at the saved times.
+        shape ``(n, n_save, 2)``: ``(x, v)`` at the saved times; with ``accumulate`` the pair
+        ``(states, sums)``, ``sums`` of shape ``(n, n_save, k)``.
     """
     step = jax.checkpoint(make_batch_step(path_model, rule, h, substeps))
     n_half, n, m = excitation.shape
@@ -351,8 +357,25 @@ def integrate(
         return (x, v, pair[1], buf), None
 
     buf = jnp.zeros((n_save + 1, n, 2), dtype=x0.dtype).at[initial_slot].set(jnp.stack([x0, v0], axis=-1))
-    (x, v, _, buf), _ = jax.lax.scan(body, (x0, v0, excitation[0], buf), (pairs, slots))
-    return jnp.moveaxis(buf[:n_save], 0, 1)
+    if accumulate is None:
+        (x, v, _, buf), _ = jax.lax.scan(body, (x0, v0, excitation[0], buf), (pairs, slots))
+        return jnp.moveaxis(buf[:n_save], 0, 1)
+
+    def increments(x, v, e, r):
+        dw = h / 6.0 * (e[0] + 4.0 * e[1] + e[2])
+        return accumulate(path_model(r), x, v, dw)
+
+    def body_with_sums(carry, inputs):
+        (x, v, e_prev, buf), sums, sums_buf = carry
+        sums = sums + jax.vmap(increments)(x, v, jnp.stack([e_prev, inputs[0][0], inputs[0][1]], axis=1), rand)
+        sums_buf = jax.lax.dynamic_update_index_in_dim(sums_buf, sums, inputs[1], axis=0)
+        return (body((x, v, e_prev, buf), inputs)[0], sums, sums_buf), None
+
+    k = jax.eval_shape(increments, x0[0], v0[0], excitation[:3, 0], rand[0]).shape[0]
+    sums = jnp.zeros((n, k), x0.dtype)
+    init = ((x0, v0, excitation[0], buf), sums, jnp.zeros((n_save + 1, n, k), x0.dtype))
+    ((_, _, _, buf), _, sums_buf), _ = jax.lax.scan(body_with_sums, init, (pairs, slots))
+    return jnp.moveaxis(buf[:n_save], 0, 1), jnp.moveaxis(sums_buf[:n_save], 0, 1)
 
 
 def with_random_parameters(model: Any, names: tuple[str, ...], values) -> Any:

@@ -73,8 +73,8 @@ def _path_inputs(scene: Scene, kind: str, row):
     return coeffs, rand
 
 
-def _simulate_chunk(scene: Scene, kind: str, rows):
-    """States ``(n, S, 2)`` of one chunk of paths."""
+def _simulate_chunk(scene: Scene, kind: str, rows, accumulate=None):
+    """States ``(n, S, 2)`` of one chunk of paths (and the running sums of ``accumulate``, see ``integrate``)."""
     dtype = scene.float_dtype
     coeffs, rand = jax.vmap(functools.partial(_path_inputs, scene, kind))(rows)
     excitation = synthesize(coeffs, scene.spectral_grid()).astype(dtype)
@@ -109,28 +109,31 @@ def _simulate_chunk(scene: Scene, kind: str, rows):
         n_save,
         slot_of.get(0, n_save),
         scene.substeps,
+        accumulate,
     )
 
 
-def _simulate(scene: Scene, rows, *, kind: str, chunk_size: int):
+def _simulate(scene: Scene, rows, *, kind: str, chunk_size: int, accumulate=None):
     if kind not in ("dpim", "monte_carlo"):
         raise ValueError(f"kind must be 'dpim' or 'monte_carlo', got {kind!r}")
     n = rows.shape[0]
     pad = (-n) % chunk_size
     padded = jnp.concatenate([rows, jnp.repeat(rows[:1], pad, axis=0)]) if pad else rows
     chunks = padded.reshape(-1, chunk_size, *rows.shape[1:])
-    out = jax.lax.map(functools.partial(_simulate_chunk, scene, kind), chunks)
-    return out.reshape(-1, *out.shape[2:])[:n]
+    out = jax.lax.map(functools.partial(_simulate_chunk, scene, kind, accumulate=accumulate), chunks)
+    return jax.tree_util.tree_map(lambda a: a.reshape(-1, *a.shape[2:])[:n], out)
 
 
-@functools.partial(jax.jit, static_argnames=("kind", "chunk_size"))
-def simulate(scene: Scene, rows, *, kind: str, chunk_size: int):
+@functools.partial(jax.jit, static_argnames=("kind", "chunk_size", "accumulate"))
+def simulate(scene: Scene, rows, *, kind: str, chunk_size: int, accumulate=None):
     """Saved states ``(N, S, 2)`` for input ``rows`` (``(N, d)`` DPIM points or ``(N, 2)`` MC key data).
+
+    With ``accumulate`` (a hashable per-step function, see ``integrate``) the pair ``(states, sums)``.
 
     Jitted; differentiable with respect to every traced leaf of ``scene``. One device, one call; see
     :func:`run_paths` for sharding over devices and streaming in blocks.
     """
-    return _simulate(scene, rows, kind=kind, chunk_size=chunk_size)
+    return _simulate(scene, rows, kind=kind, chunk_size=chunk_size, accumulate=accumulate)
 
 
 def _is_traced(tree) -> bool:
@@ -148,11 +151,11 @@ def _devices(devices):
 
 
 @functools.lru_cache(maxsize=32)
-def _sharded_simulate(kind: str, chunk_size: int, devices: tuple):
+def _sharded_simulate(kind: str, chunk_size: int, devices: tuple, accumulate=None):
     """``simulate`` with the path axis split over ``devices`` (one shard of whole chunks per device)."""
     mesh = jax.sharding.Mesh(np.asarray(devices), ("paths",))
     spec = jax.sharding.PartitionSpec("paths")
-    local = functools.partial(_simulate, kind=kind, chunk_size=chunk_size)
+    local = functools.partial(_simulate, kind=kind, chunk_size=chunk_size, accumulate=accumulate)
     body = jax.shard_map(
         local, mesh=mesh, in_specs=(jax.sharding.PartitionSpec(), spec), out_specs=spec, check_vma=False
     )
@@ -178,7 +181,16 @@ class _Progress:
 
 
 def run_paths(
-    scene: Scene, rows, *, kind: str, chunk_size: int, block_size=None, devices=None, progress=None, label=""
+    scene: Scene,
+    rows,
+    *,
+    kind: str,
+    chunk_size: int,
+    block_size=None,
+    devices=None,
+    progress=None,
+    label="",
+    accumulate=None,
 ):
     """Saved states ``(N, S, 2)`` of ``rows``, sharded over ``devices`` and streamed in blocks of paths.
 
@@ -191,11 +203,12 @@ def run_paths(
             pure function of its row, so the states do not depend on the devices or the blocks.
         progress: report progress on stderr (``None``: only when there is more than one block).
         label: the progress line's prefix.
+        accumulate: per-step running sums (see ``integrate``); then the pair ``(states, sums)`` is returned.
 
     Under a JAX transformation (traced scene or rows) this is :func:`simulate`, unsharded and unstreamed.
     """
     if _is_traced((scene, rows)):
-        return simulate(scene, rows, kind=kind, chunk_size=chunk_size)
+        return simulate(scene, rows, kind=kind, chunk_size=chunk_size, accumulate=accumulate)
     devices = _devices(devices)
     n = rows.shape[0]
     chunk_size = min(chunk_size, -(-n // len(devices)))  # no device left with only padding
@@ -204,10 +217,10 @@ def run_paths(
     block = -(-min(block, n) // unit) * unit  # whole chunks on every device
     n_blocks = -(-n // block)
     if len(devices) == 1:
-        run = functools.partial(simulate, kind=kind, chunk_size=chunk_size)
+        run = functools.partial(simulate, kind=kind, chunk_size=chunk_size, accumulate=accumulate)
         sharding = jax.sharding.SingleDeviceSharding(devices[0])
     else:
-        fn, sharding = _sharded_simulate(kind, chunk_size, devices)
+        fn, sharding = _sharded_simulate(kind, chunk_size, devices, accumulate)
         run = fn
     bar = _Progress(n, label or kind, n_blocks > 1 if progress is None else bool(progress))
     pad = n_blocks * block - n
@@ -215,13 +228,14 @@ def run_paths(
     if n_blocks == 1:
         out = run(scene, jax.device_put(rows, sharding))
         bar.update(n)
-        return out[:n] if pad else out
+        return jax.tree_util.tree_map(lambda a: a[:n], out) if pad else out
     parts = []
     for b in range(n_blocks):
-        parts.append(np.asarray(run(scene, jax.device_put(rows[b * block : (b + 1) * block], sharding))))
+        out = run(scene, jax.device_put(rows[b * block : (b + 1) * block], sharding))
+        parts.append(jax.tree_util.tree_map(np.asarray, out))
         bar.update(min(n, (b + 1) * block))
-    states = np.concatenate(parts)[:n]
-    return jax.device_put(states, sharding if n % len(devices) == 0 else devices[0])
+    target = sharding if n % len(devices) == 0 else devices[0]
+    return jax.tree_util.tree_map(lambda *a: jax.device_put(np.concatenate(a)[:n], target), *parts)
 
 
 def _finish(scene: Scene, states, weights, method: str) -> Result:

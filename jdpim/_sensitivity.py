@@ -1,47 +1,64 @@
-r"""Sensitivities of DPIM response PDFs to physical parameters, by differentiating the whole pipeline.
+r"""Sensitivities ``dp(y, t) / d theta`` of response PDFs, by DPIM or Monte Carlo, at any horizon.
 
-.. math::  \frac{\partial p(y, t)}{\partial \lambda}
-           = \sum_q P_q \, \partial_{y_q} \mathcal{N}(y; y_q(t), \sigma^2) \, \frac{\partial y_q(t)}{\partial \lambda}
+.. math::  \frac{\partial p(y, t)}{\partial \theta} \approx \sum_i w_i \, c_i(y)
 
-for a parameter ``lambda`` (``alpha``, ``gamma``, ``r``, ``barrier``, ``omega`` of the model, or the
-noise intensity ``D``). The point set ``theta_q, P_q`` does not depend on ``lambda``; the trajectory
-sensitivities ``dy_q / d lambda`` come from forward- or reverse-mode differentiation through the
-excitation, the RK4 scan and the located impacts (whose event-time shift gives the saltation matrix,
-README "Numerics"), and ``lambda = barrier`` also moves the reflection of the kernel.
+with per-path contributions ``c_i`` from an estimator per parameter (``jdpim._estimators``): a likelihood
+ratio (Girsanov score) for drift parameters, the exact noise scaling for ``D``, central differences with
+common random numbers for ``r`` and ``barrier``, or pathwise AD through the pipeline (exact for the
+computed density, but only over short horizons when there are impacts). ``estimator="auto"`` picks the
+pathwise derivative for models without a barrier (it is exact and bounded there) and otherwise the
+bounded estimators. docs/gradients.md says which to use when.
 
-Bandwidth: by default the rule-based ``sigma`` is evaluated at the nominal parameters and then held
-fixed, so the result is the exact derivative of the computed (smoothed) density
-``p * N(0, sigma^2)``, whose expectation is the smoothed true sensitivity. ``bandwidth="adaptive"``
-differentiates the rule too (``dsigma / d lambda`` through the weighted spread of the samples), which
-is what ``jax.grad`` of ``Result.pdf(..., bandwidth=None)`` gives.
-
-Cost: forward mode (the default) costs about ``1 + len(wrt)`` forward runs whatever the grid size;
-reverse mode costs one backward pass per grid output, with memory bounded by the ``jax.checkpoint``
-around the scan step (the carry of each step is kept, RK4 stages are recomputed). Use forward mode for
-few parameters and many grid outputs, reverse mode for a scalar functional of many parameters.
+Bandwidth: ``None`` uses the rule-based ``sigma`` at the nominal parameters, held fixed, so every estimator
+targets the derivative of the same smoothed density ``p * K_sigma``.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Sequence
+import warnings
+from collections.abc import Mapping, Sequence
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
-from ._pipelines import dpim, dpim_points
+from ._density import _kernel_matrix
+from ._density import bandwidth as rule_bandwidth
+from ._estimators import (
+    CentralDifference,
+    LikelihoodRatio,
+    NoiseScaling,
+    Pathwise,
+    Score,
+    SensitivityWarning,
+    check_likelihood_ratio,
+    get_parameter,
+    noise_scaling_applies,
+    set_parameter,
+    window_of,
+)
+from ._models import Oscillator
+from ._pipelines import dpim_inputs, monte_carlo_inputs, run_paths
 from ._points import PointSet
 from ._result import Result
 from ._scene import Scene
 
 NOISE_PARAMETERS = ("D",)
 VARIABLES = ("x", "v", "xv")
+METHODS = ("dpim", "monte_carlo")
+DEFAULT_PATHS = {"dpim": 1000, "monte_carlo": 100_000}
+STDERR_WARN = 0.25  # relative L2 standard error above which a result is flagged
+EXPLOSION = 1e3  # |theta dp/dtheta| / max p above which a pathwise result is flagged
+_CHUNK = 512
 
 
 def parameter_names(scene: Scene) -> tuple[str, ...]:
-    """Names that :func:`sensitivity` accepts for ``scene``: the model's traced fields and ``"D"``."""
+    """Names :func:`sensitivity` accepts: the model's traced fields, keys of a dict ``Oscillator.params``, ``"D"``."""
     fields = dataclasses.fields(scene.model)
     model = tuple(f.name for f in fields if not f.metadata.get("static", False) and f.name != "params")
+    if isinstance(scene.model, Oscillator) and isinstance(scene.model.params, dict):
+        model = model + tuple(k for k in scene.model.params if k not in model and isinstance(k, str))
     return model + NOISE_PARAMETERS
 
 
@@ -51,19 +68,47 @@ def with_parameters(scene: Scene, values: dict) -> Scene:
     unknown = sorted(set(values) - set(allowed))
     if unknown:
         raise ValueError(f"unknown parameter(s) {unknown}; choose from {list(allowed)}")
-    model_changes = {k: v for k, v in values.items() if k not in NOISE_PARAMETERS}
-    if model_changes:
-        scene = scene.replace(model=scene.model.replace(**model_changes))
+    model = scene.model
+    for name, value in values.items():
+        if name not in NOISE_PARAMETERS:
+            model = set_parameter(model, name, value)
+    scene = scene.replace(model=model)
     if "D" in values:
         scene = scene.replace(noise=dataclasses.replace(scene.noise, D=values["D"]))
     return scene
 
 
 def _nominal(scene: Scene, name: str):
-    value = scene.noise.D if name == "D" else getattr(scene.model, name)
+    value = scene.noise.D if name == "D" else get_parameter(scene.model, name)
     if value is None:
         raise ValueError(f"parameter {name!r} is None (the term is left out); set it to a number to differentiate")
     return jnp.asarray(value, scene.float_dtype)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Sensitivity(Mapping):
+    """Derivatives ``name -> dp/dtheta`` on the grid (a read-only mapping), with standard errors.
+
+    Attributes:
+        value: ``{name: array}``, shaped like the PDF, in PDF units per parameter unit.
+        stderr: ``{name: array}`` of the same shapes (NaN for :class:`Pathwise`, which has none).
+        estimators: ``{name: estimator}`` actually used.
+        t: the time of the derivative, s.
+    """
+
+    value: dict
+    stderr: dict
+    estimators: dict
+    t: float
+
+    def __getitem__(self, name):
+        return self.value[name]
+
+    def __iter__(self):
+        return iter(self.value)
+
+    def __len__(self):
+        return len(self.value)
 
 
 def _density(res: Result, var: str, grid, t, bandwidth, rule: str):
@@ -81,6 +126,88 @@ def _density(res: Result, var: str, grid, t, bandwidth, rule: str):
     return res.pdf(var, grid, t, bandwidth=sig[0])
 
 
+def _auto(scene: Scene, name: str):
+    if not scene.model.has_barrier:
+        return Pathwise()
+    if name == "D":
+        return NoiseScaling() if noise_scaling_applies(scene) is None else CentralDifference()
+    try:
+        check_likelihood_ratio(scene, name)
+    except ValueError:
+        return CentralDifference()
+    return LikelihoodRatio()
+
+
+def _estimators(scene: Scene, wrt, estimator) -> dict:
+    kinds = (Pathwise, LikelihoodRatio, NoiseScaling, CentralDifference)
+    out = {}
+    for name in wrt:
+        est = estimator.get(name, "auto") if isinstance(estimator, Mapping) else estimator
+        if isinstance(est, str) and est == "auto":
+            est = _auto(scene, name)
+        if not isinstance(est, kinds):
+            raise TypeError(
+                f"estimator for {name!r} must be 'auto' or one of {[k.__name__ for k in kinds]}, got {est!r}"
+            )
+        if isinstance(est, LikelihoodRatio):
+            check_likelihood_ratio(scene, name)
+        if isinstance(est, NoiseScaling):
+            if name != "D":
+                raise ValueError(f"NoiseScaling estimates dp/dD only, not {name!r}")
+            reason = noise_scaling_applies(scene)
+            if reason is not None:
+                raise ValueError(f"NoiseScaling does not apply: {reason}; use CentralDifference for D")
+            if scene.model.gamma is not None:
+                check_likelihood_ratio(scene, "gamma")
+        out[name] = est
+    return out
+
+
+def _kernel(var: str, grid, sigma, barrier):
+    """Per-path kernels: ``(x, v)`` chunks ``(c,)`` -> ``(c, *grid_shape)``."""
+
+    def kern(x, v):
+        if var == "x":
+            return _kernel_matrix(grid, x, sigma, barrier).T
+        if var == "v":
+            return _kernel_matrix(grid, v, sigma, None).T
+        kx = _kernel_matrix(grid[0], x, sigma[0], barrier).T
+        kv = _kernel_matrix(grid[1], v, sigma[1], None).T
+        return kx[:, :, None] * kv[:, None, :]
+
+    return kern
+
+
+def _moments(contribution, inputs, weights):
+    """``sum_i w_i c_i`` and its standard error ``sqrt(sum_i w_i^2 (c_i - mean)^2)``, over chunks of paths."""
+    n = weights.shape[0]
+    size = min(_CHUNK, n)
+    pad = (-n) % size
+    chunks = jax.tree_util.tree_map(
+        lambda a: jnp.pad(a, [(0, pad)] + [(0, 0)] * (a.ndim - 1)).reshape(-1, size, *a.shape[1:]), (inputs, weights)
+    )
+
+    def body(acc, chunk):
+        inp, w = chunk
+        c = contribution(*inp)
+        ww = w * w
+        terms = ((w, c), (ww, c * c), (ww, c))
+        return tuple(a + jnp.tensordot(u, b, axes=1) for a, (u, b) in zip(acc, terms, strict=True)), None
+
+    shape = jax.eval_shape(contribution, *jax.tree_util.tree_map(lambda a: a[0], chunks[0])).shape[1:]
+    zeros = jnp.zeros(shape, weights.dtype)
+    (s1, s2, s3), _ = jax.lax.scan(body, (zeros, zeros, zeros), chunks)
+    var = s2 - 2.0 * s1 * s3 + s1 * s1 * jnp.sum(weights * weights)
+    return s1, jnp.sqrt(jnp.maximum(var, 0.0))
+
+
+def _finite_weights(weights, *arrays):
+    ok = jnp.ones(weights.shape, bool)
+    for a in arrays:
+        ok = ok & jnp.all(jnp.isfinite(a.reshape(a.shape[0], -1)), axis=1)
+    return jnp.where(ok, weights, 0.0), [jnp.where(ok.reshape((-1,) + (1,) * (a.ndim - 1)), a, 0.0) for a in arrays]
+
+
 def sensitivity(
     scene: Scene,
     wrt: Sequence[str] = ("alpha", "gamma", "r"),
@@ -88,32 +215,41 @@ def sensitivity(
     grid=None,
     t: float | None = None,
     *,
-    n_points: int = 1000,
+    method: str = "dpim",
+    n_points: int | None = None,
     points: PointSet | None = None,
+    n_samples: int | None = None,
+    seed: int = 0,
     bandwidth=None,
     rule: str = "chen",
-    mode: str = "forward",
-) -> dict:
-    r"""Derivatives ``dp(y, t) / d lambda`` of the DPIM PDF on a grid, for each parameter in ``wrt``.
+    estimator="auto",
+    chunk_size: int | None = None,
+) -> Sensitivity:
+    r"""Derivatives ``dp(y, t) / d theta`` of the PDF on a grid, with standard errors, for each name in ``wrt``.
 
     Args:
         scene: the scene; its parameter values are the point of differentiation.
         wrt: parameter names (see :func:`parameter_names`: ``alpha``, ``gamma``, ``r``, ``barrier``,
-            ``omega``, ``D`` for :class:`VibroImpactOscillator`).
+            ``omega``, ``D`` for :class:`VibroImpactOscillator`; keys of a dict ``Oscillator.params``).
         var: ``"x"``, ``"v"`` (marginal PDFs) or ``"xv"`` (joint PDF).
         grid: evaluation grid, 1-D for ``"x"``/``"v"``, a pair ``(x_grid, v_grid)`` for ``"xv"``. Keep
-            ``x`` grid nodes off the barrier when differentiating with respect to ``barrier``: the
-            density jumps to zero there.
+            ``x`` nodes off the barrier when differentiating with respect to ``barrier``.
         t: a saved time of the scene (default: the last one).
-        n_points, points: the DPIM point set (common to every parameter value).
-        bandwidth: ``None`` (rule-based at the nominal parameters, held fixed), ``"adaptive"`` (the
-            rule is differentiated too), or fixed kernel standard deviation(s): a number, or a pair
-            ``(sigma_x, sigma_v)`` for ``"xv"``.
+        method: ``"dpim"`` (representative points, weights ``P_q``) or ``"monte_carlo"`` (weights ``1/N``).
+        n_points, points: DPIM point count or point set (default ``DEFAULT_PATHS["dpim"]`` points).
+        n_samples, seed: Monte Carlo sample count (default ``DEFAULT_PATHS["monte_carlo"]``) and seed.
+        bandwidth: ``None`` (rule-based at the nominal parameters, held fixed), ``"adaptive"`` (pathwise
+            only: the rule is differentiated too), or fixed kernel standard deviation(s): a number, or a
+            pair ``(sigma_x, sigma_v)`` for ``"xv"``.
         rule: bandwidth rule for ``None``/``"adaptive"`` (see ``jdpim.bandwidth``).
-        mode: ``"forward"`` (``jax.jacfwd``; cheap for few parameters) or ``"reverse"`` (``jax.jacrev``).
+        estimator: ``"auto"``, an estimator (:class:`Pathwise`, :class:`LikelihoodRatio`,
+            :class:`NoiseScaling`, :class:`CentralDifference`) for every name, or a dict ``name -> estimator``.
+        chunk_size: paths per chunk of the simulation (``None``: memory-based default).
 
     Returns:
-        dict ``name -> array`` shaped like the PDF (``(G,)`` or ``(Gx, Gv)``), in PDF units per parameter unit.
+        :class:`Sensitivity`: ``name -> array`` shaped like the PDF (``(G,)`` or ``(Gx, Gv)``), with
+        ``.value``, ``.stderr`` and ``.estimators``. A :class:`SensitivityWarning` flags pathwise results
+        beyond their horizon or exploding, and results whose standard error exceeds a quarter of their size.
 
     Example:
         >>> import jdpim, numpy as np
@@ -121,13 +257,17 @@ def sensitivity(
         >>> scene = jdpim.Scene(model, noise=jdpim.WhiteNoise(D=0.05), t_end=2.0, dt=0.02)
         >>> points = jdpim.dpim_points(scene, 16)
         >>> dp = jdpim.sensitivity(scene, ("alpha",), "v", np.linspace(-1.0, 1.0, 9), points=points)
-        >>> dp["alpha"].shape
-        (9,)
+        >>> dp["alpha"].shape, type(dp.estimators["alpha"]).__name__
+        ((9,), 'Pathwise')
     """
     if var not in VARIABLES:
         raise ValueError(f"var must be one of {VARIABLES}, got {var!r}")
-    if mode not in ("forward", "reverse"):
-        raise ValueError(f"mode must be 'forward' or 'reverse', got {mode!r}")
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    if method == "dpim" and n_samples is not None:
+        raise ValueError("n_samples is for method='monte_carlo'; use n_points or points with method='dpim'")
+    if method == "monte_carlo" and (n_points is not None or points is not None):
+        raise ValueError("n_points and points are for method='dpim'; use n_samples with method='monte_carlo'")
     if isinstance(bandwidth, str) and bandwidth != "adaptive":
         raise ValueError(f"bandwidth must be None, 'adaptive' or a number, got {bandwidth!r}")
     wrt = tuple(wrt)
@@ -139,13 +279,174 @@ def sensitivity(
     if grid is None:
         raise ValueError("grid is required")
     t = scene.save_at[-1] if t is None else t
-    scene.time_index(t)
-    if points is None:
-        points = dpim_points(scene, n_points)
+    t = scene.save_at[scene.time_index(t)]
     values = {name: _nominal(scene, name) for name in wrt}
+    estimators = _estimators(scene, wrt, estimator)
+    if bandwidth == "adaptive" and not all(isinstance(e, Pathwise) for e in estimators.values()):
+        raise ValueError("bandwidth='adaptive' needs the Pathwise estimator for every parameter")
+    if method == "dpim":
+        rows, weights, chunk = dpim_inputs(
+            scene, n_points or DEFAULT_PATHS["dpim"], points=points, chunk_size=chunk_size
+        )
+    else:
+        n = n_samples or DEFAULT_PATHS["monte_carlo"]
+        rows, weights, chunk = monte_carlo_inputs(scene, n, seed=seed, chunk_size=chunk_size)
+    value, stderr = {}, {}
+    pathwise = [n for n in wrt if isinstance(estimators[n], Pathwise)]
+    if pathwise:
+        value.update(
+            _pathwise(scene, pathwise, estimators, var, grid, t, values, bandwidth, rule, method, rows, weights, chunk)
+        )
+        stderr.update({n: jnp.full_like(value[n], jnp.nan) for n in pathwise})
+    rest = [n for n in wrt if n not in pathwise]
+    if rest:
+        v, e = _sampled(scene, rest, estimators, var, grid, t, bandwidth, rule, method, rows, weights, chunk)
+        value.update(v)
+        stderr.update(e)
+        for name in rest:
+            rel = float(jnp.linalg.norm(e[name]) / jnp.maximum(jnp.linalg.norm(v[name]), 1e-300))
+            if not rel < STDERR_WARN:
+                warnings.warn(
+                    f"dp/d{name}: standard error {rel:.2g} of the value (relative L2); use more paths "
+                    "(n_points / n_samples) or a wider bandwidth",
+                    SensitivityWarning,
+                    stacklevel=2,
+                )
+    return Sensitivity({n: value[n] for n in wrt}, {n: stderr[n] for n in wrt}, estimators, float(t))
 
-    def pdf_of(values):
-        return _density(dpim(with_parameters(scene, values), points=points), var, grid, t, bandwidth, rule)
 
-    jac = jax.jacfwd if mode == "forward" else jax.jacrev
-    return jac(pdf_of)(values)
+def _pathwise(scene, names, estimators, var, grid, t, values, bandwidth, rule, method, rows, weights, chunk):
+    """Pathwise derivatives through the pipeline (with the guard against exploding tangents)."""
+    est = estimators[names[0]]
+
+    def pdf_of(vals):
+        s = with_parameters(scene, vals)
+        states = run_paths(s, rows, kind=method, chunk_size=chunk)
+        barrier = s.model.barrier if s.model.has_barrier else None
+        res = Result(
+            times=np.asarray(scene.save_at, scene.float_dtype),
+            states=states,
+            weights=weights,
+            barrier=barrier,
+            method=method,
+        )
+        p = _density(res, var, grid, t, bandwidth, rule)
+        return p, p
+
+    jac = jax.jacfwd if est.mode == "forward" else jax.jacrev
+    sub = {n: values[n] for n in names}
+    out, p = jac(pdf_of, has_aux=True)(sub)
+    pathwise_guard(scene.model.has_barrier, t, min(estimators[n].horizon for n in names), values, out, p)
+    return out
+
+
+def pathwise_guard(has_barrier: bool, t: float, horizon: float, values: dict, derivatives: dict, pdf) -> None:
+    """Warn (:class:`SensitivityWarning`) about pathwise derivatives past the horizon or exploding."""
+    if has_barrier and t > horizon:
+        warnings.warn(
+            f"pathwise derivatives at t = {t:g} s (beyond the Pathwise horizon {horizon:g} s) through impacts are "
+            "not reliable: tangents grow without bound across impacts; use estimator='auto' (likelihood ratio, "
+            "noise scaling, central differences)",
+            SensitivityWarning,
+            stacklevel=4,
+        )
+    pmax = float(jnp.max(jnp.abs(pdf)))
+    for n, d in derivatives.items():
+        scale = float(jnp.max(jnp.abs(d))) * max(abs(float(values[n])), 1e-12)
+        if not scale <= EXPLOSION * pmax:
+            warnings.warn(
+                f"pathwise dp/d{n} explodes (max |{n} dp/d{n}| = {scale:.3g} against max p = {pmax:.3g}); "
+                "use estimator='auto'",
+                SensitivityWarning,
+                stacklevel=4,
+            )
+
+
+def _sampled(scene, names, estimators, var, grid, t, bandwidth, rule, method, rows, weights, chunk):
+    """Likelihood-ratio, noise-scaling and central-difference estimates from one common set of paths."""
+    dtype = scene.float_dtype
+    dt = scene.dt
+    scored = [n for n in names if isinstance(estimators[n], LikelihoodRatio)]
+    if "D" in names and isinstance(estimators["D"], NoiseScaling) and scene.model.gamma is not None:
+        if "gamma" not in scored:
+            scored.append("gamma")
+    lr_of = {n: estimators[n] for n in scored if n in estimators and isinstance(estimators[n], LikelihoodRatio)}
+    if "gamma" in scored and "gamma" not in lr_of:
+        lr_of["gamma"] = estimators["D"].gamma
+    k_t = int(round(t / dt))
+    starts = {n: max(0, k_t - int(round(min(window_of(e, scene.model), t) / dt))) for n, e in lr_of.items()}
+    times = sorted({k_t} | {k for k in starts.values() if k > 0})
+    run_scene = scene.replace(save_at=tuple(k * dt for k in times))
+    score = Score(tuple(scored), dt) if scored else None
+    out = run_paths(run_scene, rows, kind=method, chunk_size=chunk, accumulate=score)
+    states, sums = out if score is not None else (out, None)
+    it = times.index(k_t)
+    x, v = states[:, it, 0], states[:, it, 1]
+    w, (x, v) = _finite_weights(weights, x, v)
+    barrier = scene.model.barrier if scene.model.has_barrier else None
+    if bandwidth is None:
+        dim = 2 if var == "xv" else 1
+        sig = [rule_bandwidth(s, w, rule, dim=dim) for s in ((x, v) if var == "xv" else (x if var == "x" else v,))]
+        sigma = tuple(sig) if var == "xv" else sig[0]
+    else:
+        sigma = tuple(bandwidth) if var == "xv" else bandwidth
+    g = (jnp.asarray(grid[0], dtype), jnp.asarray(grid[1], dtype)) if var == "xv" else jnp.asarray(grid, dtype)
+    kern = _kernel(var, g, sigma, barrier)
+    scores = {}
+    if score is not None:
+        D = jnp.asarray(scene.noise.D, dtype)
+        total = sums[:, it]
+        q = jnp.sum(w * total[:, -1]) / jnp.sum(w) / max(k_t, 1)
+        frac = 1.0 - q / (2.0 * D * dt)
+        for j, n in enumerate(scored):
+            a = total - (sums[:, times.index(starts[n])] if starts[n] > 0 else 0.0)
+            c = frac if lr_of[n].ito_correction else 0.0
+            s_i = (a[:, 2 * j] - c * D * a[:, 2 * j + 1]) / (2.0 * D)
+            s_i = jnp.where(w > 0, s_i, 0.0)
+            scores[n] = s_i - jnp.sum(w * s_i) / jnp.sum(w)
+    value, stderr = {}, {}
+
+    def moments(contribution, *inputs):
+        return jax.jit(_moments, static_argnums=0)(contribution, inputs, w)
+
+    for n in names:
+        est = estimators[n]
+        if isinstance(est, LikelihoodRatio):
+            value[n], stderr[n] = moments(
+                lambda x, v, s: kern(x, v) * s.reshape((-1,) + (1,) * g_ndim(var)), x, v, scores[n]
+            )
+        elif isinstance(est, NoiseScaling):
+            D = jnp.asarray(scene.noise.D, dtype)
+            gamma = scene.model.gamma
+            sg = scores.get("gamma", jnp.zeros_like(x))
+            gcoef = 0.0 if gamma is None else jnp.asarray(gamma, dtype) / D
+
+            def contribution(x, v, s, D=D, gcoef=gcoef):
+                k, ydk = jax.jvp(kern, (x, v), (x, v))
+                return ydk / (2.0 * D) + gcoef * k * s.reshape((-1,) + (1,) * g_ndim(var))
+
+            value[n], stderr[n] = moments(contribution, x, v, sg)
+        else:
+            value[n], stderr[n] = _central_difference(scene, n, est, kern, run_scene, it, rows, weights, method, chunk)
+    return value, stderr
+
+
+def g_ndim(var: str) -> int:
+    return 2 if var == "xv" else 1
+
+
+def _central_difference(scene, name, est, kern, run_scene, it, rows, weights, method, chunk):
+    lo, hi = est.pair(name, float(_nominal(scene, name)))
+    ends = []
+    for val in (lo, hi):
+        s = with_parameters(run_scene, {name: val})
+        ends.append(run_paths(s, rows, kind=method, chunk_size=chunk)[:, it])
+    w, (a, b) = _finite_weights(weights, ends[0], ends[1])
+    kern_lo = kern
+    if name == "barrier":
+        raise ValueError("CentralDifference with respect to the barrier moves the kernel's reflection: not supported")
+
+    def contribution(xa, va, xb, vb):
+        return (kern(xb, vb) - kern_lo(xa, va)) / (hi - lo)
+
+    return jax.jit(_moments, static_argnums=0)(contribution, (a[:, 0], a[:, 1], b[:, 0], b[:, 1]), w)

@@ -14,8 +14,10 @@ from scipy import optimize
 
 import jdpim
 from jdpim import exact
+from jdpim._estimators import Pathwise, SensitivityWarning
 from jdpim._integrate import ImpactRule, integrate, make_batch_step
 from jdpim._sensitivity import _density as density_of
+from jdpim._sensitivity import pathwise_guard
 
 PARAMS = ("alpha", "gamma", "r", "barrier", "D")
 T_FD = 5.0
@@ -162,7 +164,7 @@ def _loss(scene, points, alpha):
 
 def _forward(scene, points, alpha):
     s = scene.replace(model=scene.model.replace(alpha=alpha))
-    dp = jdpim.sensitivity(s, ("alpha",), "v", V_TINY, points=points, bandwidth=0.2)["alpha"]
+    dp = jdpim.sensitivity(s, ("alpha",), "v", V_TINY, points=points, bandwidth=0.2, estimator=Pathwise())["alpha"]
     return float(jnp.sum(dp * jnp.linspace(0.0, 1.0, V_TINY.size)))
 
 
@@ -237,6 +239,29 @@ def test_sensitivity_rejects_bad_arguments(tiny):
         jdpim.sensitivity(scene.replace(model=scene.model.replace(gamma=None)), ("gamma",), "v", V_TINY, points=points)
 
 
+def test_pathwise_guard():
+    """Exploding pathwise values (the README call at t = 5 from rest gave max |dp/dalpha| ~ 1e10) are flagged."""
+    p = np.array([0.1, 1.0, 0.5])
+    ok = {"alpha": np.array([1.0, -3.0, 2.0])}
+    pathwise_guard(True, 2.0, 4.0, {"alpha": 0.03}, ok, p)  # no warning (warnings are errors here)
+    with pytest.warns(SensitivityWarning, match="beyond the Pathwise horizon"):
+        pathwise_guard(True, 5.0, 4.0, {"alpha": 0.03}, ok, p)
+    pathwise_guard(False, 50.0, 4.0, {"alpha": 0.03}, ok, p)  # no barrier: no impacts, no horizon
+    with pytest.warns(SensitivityWarning, match="explodes"):
+        pathwise_guard(False, 2.0, 4.0, {"alpha": 0.03}, {"alpha": np.array([1.0, 1.8e10, 2.0])}, p)
+
+
+@pytest.mark.slow
+def test_pathwise_beyond_its_horizon_warns(tiny):
+    """Pathwise tangents through impacts grow without bound: never returned silently past the horizon."""
+    scene, points = tiny
+    with pytest.warns(SensitivityWarning, match="beyond the Pathwise horizon"):
+        dp = jdpim.sensitivity(
+            scene, ("alpha",), "v", V_TINY, points=points, bandwidth=0.2, estimator=Pathwise(horizon=1.0)
+        )
+    assert np.all(np.isfinite(dp["alpha"]))
+
+
 @pytest.mark.slow
 def test_noise_derivative_against_the_exact_elastic_solution():
     """``dp/dD`` at t = 10 (r = 1, linear damping, from rest) against the exact derivative of the smoothed PDF.
@@ -252,7 +277,8 @@ def test_noise_derivative_against_the_exact_elastic_solution():
     points = jdpim.dpim_points(scene, 256)
     grid = np.linspace(0.02, 2.0, 100)
     sigma = float(jdpim.dpim(scene, points=points).bandwidth("x", T))
-    dp = np.asarray(jdpim.sensitivity(scene, ("D",), "x", grid, T, points=points, bandwidth=sigma)["D"])
+    dp = jdpim.sensitivity(scene, ("D",), "x", grid, T, points=points, bandwidth=sigma, estimator=Pathwise())["D"]
+    dp = np.asarray(dp)
 
     def smoothed(d):
         s2 = exact.linear_covariance(alpha, d, T)[0] + sigma**2

@@ -1,4 +1,4 @@
-"""``python -m jdpim.bench {accuracy,budget,speed,throughput} ...``: accuracy, error budget, speed, throughput."""
+"""``python -m jdpim.bench {accuracy,budget,speed,throughput,sensitivity} ...``: benchmarks."""
 
 from __future__ import annotations
 
@@ -39,6 +39,9 @@ def main(argv=None) -> int:
     thr.add_argument("--t-end", type=float, default=200.0, help="end time (s)")
     thr.add_argument("--repeats", type=_positive_int, default=3, help="warm repeats (median)")
     thr.add_argument("--out", type=pathlib.Path, default=pathlib.Path("jdpim_out/bench"))
+    sens = sub.add_parser("sensitivity", help="sensitivity estimators: error against exact derivatives versus cost")
+    sens.add_argument("--quick", action="store_true", help="short horizons and few paths: a few minutes on 2 cores")
+    sens.add_argument("--out", type=pathlib.Path, default=pathlib.Path("jdpim_out/bench"))
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
     if args.command == "accuracy":
         from .accuracy import QUICK, Sweep, sweep, write
@@ -73,6 +76,10 @@ def main(argv=None) -> int:
             repeats=args.repeats,
             log=lambda s: print(s, flush=True),
         )
+    elif args.command == "sensitivity":
+        from .sensitivity import run_sensitivity
+
+        files = run_sensitivity(args.out, quick=args.quick, log=lambda s: print(s, flush=True))
     else:
         from .budget import run_budget
 

@@ -1,0 +1,217 @@
+r"""Estimators of PDF sensitivities ``dp(y, t) / d theta`` that stay bounded at every horizon.
+
+Each estimator writes the derivative as a weighted sum of per-path contributions
+``dp/dtheta(y) ~ sum_i w_i c_i(y)`` (``w_i = 1/N`` for Monte Carlo, ``P_q`` for DPIM), which also gives a
+standard error ``sqrt(sum_i w_i^2 (c_i - dp/dtheta)^2)`` (exact for Monte Carlo; a heuristic for DPIM's
+deterministic points). ``K(y, Y)`` is the density's kernel (reflected at the barrier).
+
+- :class:`LikelihoodRatio` (drift parameters: ``alpha``, ``gamma``, ``omega``, drift entries of
+  ``Oscillator.params``): ``c_i = K(y, Y_i) (S_i - Sbar)`` with the Girsanov score of the last window
+  ``tau``, ``S = [sum d_theta b / h * dW - c D sum h d_v(d_theta b / h) dt] / (2 D)``.
+- :class:`NoiseScaling` (``D`` of :class:`VibroImpactOscillator` with the barrier at 0, started at rest):
+  ``p(x; D, gamma) = D^-1/2 q(x / sqrt D; gamma D)`` gives
+  ``dp/dD = -(1/2D) sum_j d_j(y_j p) + (gamma / D) dp/dgamma``, so ``c_i = Y_i . grad_Y K / (2 D) + gamma/D c_i^gamma``.
+- :class:`CentralDifference` (any parameter; the default for ``r`` and ``barrier``): common random numbers,
+  ``c_i = (K(y, Y_i(theta + d)) - K(y, Y_i(theta - d))) / 2d``.
+- :class:`Pathwise`: forward/reverse AD through the whole pipeline; exact for the computed density but its
+  tangents grow without bound across impacts, so trusted only over short horizons (a warning beyond).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import jax
+import jax.numpy as jnp
+
+from ._models import Oscillator, VibroImpactOscillator
+from ._pytree import check_real
+
+DRIFT_EXCLUDED = ("r", "barrier", "D")
+
+
+class SensitivityWarning(UserWarning):
+    """A sensitivity may be unreliable: pathwise tangents that blow up, or a standard error large against the value."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Pathwise:
+    """Differentiate the pipeline itself (``jax.jacfwd`` or ``jax.jacrev``): exact for the computed density.
+
+    Args:
+        mode: ``"forward"`` (cheap for few parameters) or ``"reverse"``.
+        horizon: seconds (> 0) beyond which pathwise derivatives of a model with a barrier are not trusted
+            (tangents grow across impacts: about 1e-5 relative error at t = 2, 6e-3 at t = 8, O(10) at t = 12);
+            later times give a :class:`SensitivityWarning`.
+    """
+
+    mode: str = "forward"
+    horizon: float = 4.0
+
+    def __post_init__(self):
+        if self.mode not in ("forward", "reverse"):
+            raise ValueError(f"mode must be 'forward' or 'reverse', got {self.mode!r}")
+        check_real("horizon", self.horizon, low=0.0, low_open=True)
+
+
+@dataclasses.dataclass(frozen=True)
+class LikelihoodRatio:
+    r"""Centred, truncated likelihood-ratio (Girsanov score) estimator for drift parameters.
+
+    Args:
+        window: length ``tau`` in s of the score window, or ``None`` for ``4 / alpha`` (the truncation bias
+            decays like ``exp(-alpha tau)``; ``alpha`` is the model's field or ``Oscillator.params["alpha"]``),
+            or the whole history when there is no positive ``alpha``.
+            For ``t <= tau`` the whole history is used (exact from a deterministic start).
+        ito_correction: subtract the Wong-Zakai term ``c D sum h d_v(d_theta b / h) dt``; the fraction
+            ``c = 1 - Var(dW) / (2 D dt)`` (about 0.43 at the default cutoff ``2 / dt``) measures how far
+            left-point sums over the band-limited excitation are from Ito sums.
+    """
+
+    window: float | None = None
+    ito_correction: bool = True
+
+    def __post_init__(self):
+        if self.window is not None:
+            check_real("window", self.window, low=0.0, low_open=True)
+
+
+@dataclasses.dataclass(frozen=True)
+class NoiseScaling:
+    """``dp/dD`` from the exact scaling of :class:`VibroImpactOscillator` (barrier 0, start at rest).
+
+    Args:
+        gamma: estimator of the ``dp/dgamma`` term (used when the model has cubic damping).
+    """
+
+    gamma: LikelihoodRatio = LikelihoodRatio()
+
+
+@dataclasses.dataclass(frozen=True)
+class CentralDifference:
+    """Central differences with common random numbers (the same seed or the same point set).
+
+    Args:
+        step: half step ``d`` (> 0) in parameter units, or ``None`` for ``0.01`` for ``r`` and ``0.05 max(|theta|,
+            1e-2)`` otherwise. Near a bound (``r <= 1``, ``alpha >= 0``) the pair is shifted inside it. Paths that
+            switch (stick or not, graze or not) make per-path differences jump, with a variance ~ 1/d: a 1 %
+            step gave a standard error of 4.9 (relative) for dp/dalpha at t = 10 from rest with 2000 paths.
+    """
+
+    step: float | None = None
+
+    def __post_init__(self):
+        if self.step is not None:
+            check_real("step", self.step, low=0.0, low_open=True)
+
+    def pair(self, name: str, value: float) -> tuple[float, float]:
+        """The two parameter values ``(lo, hi)`` of the difference, inside the parameter's range."""
+        d = self.step if self.step is not None else (0.01 if name == "r" else 0.05 * max(abs(value), 1e-2))
+        low, high = {"r": (0.0, 1.0), "alpha": (0.0, math.inf), "gamma": (0.0, math.inf), "D": (0.0, math.inf)}.get(
+            name, (-math.inf, math.inf)
+        )
+        lo, hi = value - d, value + d
+        if hi > high:
+            lo, hi = high - 2 * d, high
+        if lo < low:
+            lo, hi = low, low + 2 * d
+        return lo, hi
+
+
+# ---- parameters by name -----------------------------------------------------------------------------
+
+
+def get_parameter(model, name: str):
+    """A model parameter by name: a field, or a key of ``Oscillator.params`` (a dict)."""
+    if isinstance(model, Oscillator) and isinstance(model.params, dict) and name in model.params:
+        return model.params[name]
+    return getattr(model, name)
+
+
+def set_parameter(model, name: str, value):
+    """``model`` with the parameter ``name`` (a field or a key of ``Oscillator.params``) replaced."""
+    if isinstance(model, Oscillator) and isinstance(model.params, dict) and name in model.params:
+        return model.replace(params={**model.params, name: value})
+    return model.replace(**{name: value})
+
+
+def drift_derivative(model, name: str, x, v):
+    """``d_theta b(x, v)`` with ``b = -g(x) - f(x, v)`` the deterministic acceleration (one path)."""
+    value = jnp.asarray(get_parameter(model, name), jnp.result_type(v))
+
+    def b(p):
+        return set_parameter(model, name, p).acceleration(x, v, jnp.zeros((1,), jnp.result_type(v)))
+
+    return jax.jvp(b, (value,), (jnp.ones_like(value),))[1]
+
+
+@dataclasses.dataclass(frozen=True)
+class Score:
+    """Per-step running sums of the score (hashable, for ``integrate``'s ``accumulate``).
+
+    For each name: ``sum (d_theta b / h) dW`` and ``sum h d_v(d_theta b / h) dt``; then ``sum dW^2``.
+    """
+
+    names: tuple[str, ...]
+    dt: float
+
+    def __call__(self, model, x, v, dw):
+        h = model.gains(x, v)[0]
+        out = []
+        for name in self.names:
+
+            def g(v, name=name):
+                return drift_derivative(model, name, x, v) / model.gains(x, v)[0]
+
+            gv, dgv = jax.jvp(g, (v,), (jnp.ones_like(v),))
+            out += [gv * dw[0], h * dgv * self.dt]
+        return jnp.stack([*out, dw[0] ** 2])
+
+
+def check_likelihood_ratio(scene, name: str) -> None:
+    """Raise unless the score applies: one noise source, a drift parameter that leaves the gains alone."""
+    if name in DRIFT_EXCLUDED:
+        raise ValueError(f"LikelihoodRatio applies to drift parameters only, not {name!r}; use CentralDifference")
+    if scene.n_sources != 1:
+        raise ValueError(f"LikelihoodRatio needs one noise source, the scene has {scene.n_sources}")
+    if any(n == name for n, _ in scene.random):
+        raise ValueError(f"parameter {name!r} is random in this scene; use CentralDifference")
+    model = scene.model
+    value = jnp.asarray(get_parameter(model, name), scene.float_dtype)
+
+    def gain(p):
+        return set_parameter(model, name, p).gains(jnp.asarray(0.3, value.dtype), jnp.asarray(0.7, value.dtype))
+
+    if jnp.any(jax.jvp(gain, (value,), (jnp.ones_like(value),))[1] != 0):
+        raise ValueError(f"parameter {name!r} changes the noise gains: no likelihood ratio; use CentralDifference")
+
+
+def noise_scaling_applies(scene) -> str | None:
+    """``None`` if :class:`NoiseScaling` applies to ``scene``, else the reason."""
+    m = scene.model
+    if not isinstance(m, VibroImpactOscillator):
+        return "the model is not a VibroImpactOscillator"
+    if m.barrier is not None and (not isinstance(m.barrier, (int, float)) or m.barrier != 0):
+        return f"the barrier is at {m.barrier!r}, not 0"
+    if scene.x0 not in (None, 0, 0.0) or not isinstance(scene.v0, (int, float)) or scene.v0 != 0:
+        return "the start is not at rest at 0"
+    if scene.random:
+        return "the scene has random parameters"
+    if scene.n_sources != 1:
+        return "the noise has several sources"
+    return None
+
+
+def window_of(estimator: LikelihoodRatio, model) -> float:
+    """The score window in s (``inf`` for the whole history)."""
+    if estimator.window is not None:
+        return float(estimator.window)
+    alpha = getattr(model, "alpha", None)
+    if isinstance(model, Oscillator) and isinstance(model.params, dict):
+        alpha = model.params.get("alpha")
+    try:
+        alpha = float(alpha)
+    except (TypeError, ValueError):
+        return math.inf
+    return 4.0 / alpha if alpha > 0 else math.inf
