@@ -8,7 +8,7 @@ from nbclient import NotebookClient
 
 NOTEBOOKS = sorted((pathlib.Path(__file__).parents[1] / "notebooks").glob("*.ipynb"))
 COLAB = "https://colab.research.google.com/github/jdpim/jdpim/blob/main/notebooks/"
-WITH_BADGE = ("accuracy", "paper", "quickstart")  # sensitivities.ipynb gets its badge with its own work
+WITH_BADGE = ("accuracy", "paper", "quickstart", "sensitivities")
 
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.stem for p in NOTEBOOKS])
