@@ -78,7 +78,7 @@ def _run_parser(sub) -> None:
     p = sub.add_parser(
         "run",
         help="a scene file, or the reference scene by DPIM and MCS: PDFs, figures, timing table",
-        description="Run a TOML scene file (`jdpim run scene.toml`, see docs/scene_files.md), or, without one, the "
+        description="Run a TOML scene file (`jdpim run scene.toml`, see docs/cli.md), or, without one, the "
         "main job: the reference scene by DPIM and Monte Carlo, with figures, a timing table and distances to the "
         "reference density. The options below set the main job's scene; a scene file carries its own.",
         formatter_class=_Formatter,

@@ -326,7 +326,7 @@ def _figures_2_to_4(settings: Settings, arrays, out: pathlib.Path, pdf: bool) ->
         ax.set_ylim(bottom=0)
         ax.set_xlabel(f"{_figures.LABEL[var]} {_figures.UNIT}")
         ax.set_ylabel(f"$p$({_figures.LABEL[var]})")
-    axes[0].legend(title="DPIM lines, MCS dots,\naveraging dashed", title_fontsize=7)
+    axes[0].legend(title="DPIM lines, MCS dots,\npath integration dashed", title_fontsize=7)
     fig.suptitle(
         f"Figure 4: marginals at $t = {t_last:g}$ s, {_figures.scene_title(ALPHA, GAMMA, R, None)}; {sizes}"
         + (" (QUICK)" if settings.name == "quick" else ""),
