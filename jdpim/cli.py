@@ -120,7 +120,7 @@ def _paper_parser(sub) -> None:
 def run(args) -> dict:
     """The main job. Returns the summary it also writes to ``<out>/summary.json``."""
     import jdpim
-    from jdpim import exact, metrics
+    from jdpim import metrics
     from jdpim.bench import timed
 
     if max(args.save_at) > args.t_end:
@@ -146,7 +146,6 @@ def run(args) -> dict:
 
     from jdpim._scenerun import grids
 
-    t_last = scene.save_at[-1]
     xg, vg = grids((dp, mc), 0.0, 301)
     dist = {}
     for t in scene.save_at:
@@ -154,14 +153,17 @@ def run(args) -> dict:
             dist[f"L1(dpim, mcs) {var} t={t:g}"] = metrics.l1(
                 np.asarray(dp.pdf(var, g, t)), np.asarray(mc.pdf(var, g, t)), g
             )
-    ref_x = exact.averaging_pdf_x(xg, args.alpha, args.gamma, args.r, args.D)
-    ref_v = exact.averaging_pdf_v(vg, args.alpha, args.gamma, args.r, args.D)
-    for name, res in (("dpim", dp), ("mcs", mc)):
-        dist[f"L1({name}, averaging) x t={t_last:g}"] = metrics.l1(np.asarray(res.pdf("x", xg, t_last)), ref_x, xg)
-        dist[f"L1({name}, averaging) v t={t_last:g}"] = metrics.l1(np.asarray(res.pdf("v", vg, t_last)), ref_v, vg)
+    ref = _reference(scene, log)
+    if ref is not None:
+        for name, res in (("dpim", dp), ("mcs", mc)):
+            for t in scene.save_at:
+                for var, g in (("x", xg), ("v", vg)):
+                    dist[f"L1({name}, path integration) {var} t={t:g}"] = metrics.l1(
+                        np.asarray(res.pdf(var, g, t)), np.asarray(ref.pdf(var, g, t)), g
+                    )
     for k, v in dist.items():
         print(f"  {k}: {v:.4f}")
-    figures = _figures(scene, dp, mc, xg, vg, ref_x, ref_v, args)
+    figures = _figures(scene, dp, mc, ref, xg, vg, args)
     from jdpim._scenerun import versions
 
     summary = {
@@ -182,6 +184,22 @@ def run(args) -> dict:
     return summary
 
 
+def _reference(scene, log):
+    """Path integration of the same scene from the same start (``GridResult``), or ``None`` where it cannot run.
+
+    It needs saved times at or after its start ``PathIntegration().t0`` on its step ``tau``
+    (docs/path_integration.md); otherwise the figures have no reference curve and the log says why.
+    """
+    import jdpim
+
+    log("path integration (reference): transient from the same start ...")
+    try:
+        return jdpim.path_integration(scene)
+    except ValueError as err:
+        log(f"no path-integration reference: {err}")
+        return None
+
+
 def _timing_table(rows, n_steps) -> str:
     lines = [
         "| method | paths | steps | compile (s) | run, median (s) | path-steps/s |",
@@ -195,22 +213,22 @@ def _timing_table(rows, n_steps) -> str:
     return "\n".join(lines)
 
 
-def _figures(scene, dp, mc, xg, vg, ref_x, ref_v, args) -> list[str]:
-    from jdpim import _figures, exact
+def _figures(scene, dp, mc, ref, xg, vg, args) -> list[str]:
+    from jdpim import _figures
 
     plt = _figures.pyplot()
     t_last = scene.save_at[-1]
     title = _figures.scene_title(args.alpha, args.gamma, args.r, args.D)
     names = []
-    for var, g, ref in (("x", xg, ref_x), ("v", vg, ref_v)):
+    for var, g in (("x", xg), ("v", vg)):
         fig, axes = plt.subplots(1, len(scene.save_at), figsize=(3.2 * len(scene.save_at), 2.8), squeeze=False)
         for ax, t in zip(axes[0], scene.save_at, strict=True):
             curves = [
                 ("monte_carlo", f"MCS ({mc.n_paths})", mc.pdf(var, g, t), mc.pdf_stderr(var, g, t)),
                 ("dpim", f"DPIM ({dp.n_paths})", dp.pdf(var, g, t), None),
             ]
-            if t == t_last:
-                curves.append(("reference", "stochastic averaging (approx.)", ref, None))
+            if ref is not None:
+                curves.append(("reference", "path integration", ref.pdf(var, g, t), None))
             _figures.marginal(ax, g, curves, var)
             ax.set_title(f"$t = {t:g}$ s")
         axes[0, -1].legend()
@@ -224,9 +242,10 @@ def _figures(scene, dp, mc, xg, vg, ref_x, ref_v, args) -> list[str]:
     panels = [
         (f"DPIM, $t = {t_last:g}$ s", np.asarray(dp.joint_pdf(xj, vj, t_last))),
         (f"MCS, $t = {t_last:g}$ s", np.asarray(mc.joint_pdf(xj, vj, t_last))),
-        ("stochastic averaging (approx.)", exact.averaging_joint_pdf(xj, vj, args.alpha, args.gamma, args.r, args.D)),
     ]
-    fig, axes = plt.subplots(1, 3, figsize=(11, 3.3), sharey=True, layout="constrained")
+    if ref is not None:
+        panels.append((f"path integration, $t = {t_last:g}$ s", np.asarray(ref.joint_pdf(xj, vj, t_last))))
+    fig, axes = plt.subplots(1, len(panels), figsize=(3.7 * len(panels), 3.3), sharey=True, layout="constrained")
     _figures.joint(fig, axes, xj, vj, panels)
     fig.suptitle(title)
     fig.savefig(args.out / "joint.png", dpi=150)
