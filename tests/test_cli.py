@@ -224,3 +224,11 @@ def test_paper_command_passes_its_settings(monkeypatch, tmp_path):
     assert seen["pdf"] is True and seen["progress"] is False and seen["out"] == tmp_path
     assert s.label().startswith("QUICK settings: DPIM 1000 points, MCS 2000 samples")
     assert paper.FULL.n_samples == 100_000 and paper.FULL.n_points == 1000  # the paper's sizes
+
+
+def test_main_job_reference_says_why_it_is_missing():
+    """Saved times before path integration's start leave the main job without a reference, and the log says why."""
+    scene = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=2.0, dt=0.01, save_at=(0.5, 2.0))
+    lines = []
+    assert cli._reference(scene, lines.append) is None
+    assert "no path-integration reference: saved time 0.5 must be t0=1.0" in lines[-1]
