@@ -116,7 +116,8 @@ def run_sensitivity(out: pathlib.Path, *, quick: bool = False, log=print) -> lis
     lines = [
         f"# Sensitivity estimators{' (quick)' if quick else ''}",
         "",
-        f"r = 1, gamma = 0, alpha = D = {ALPHA}, dt = {DT}, h = {H}, Monte Carlo; load average at the end "
+        f"r = 1, gamma = 0, alpha = D = {ALPHA}, dt = {DT}, h = {H}; Monte Carlo paths for the sampling estimators, "
+        "path integration (no paths, no sampling error) on two grids; load average at the end "
         f"{load[0]:.1f} on {os.cpu_count()} cores (timings on a shared machine).",
         "",
         "| t | parameter | estimator | paths | rel. L2 error | rel. stderr | first call s | median s | warned |",
