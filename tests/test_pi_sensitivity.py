@@ -113,7 +113,51 @@ def test_an_unresolved_diffusion_step_is_flagged_for_d(elastic):
 
     from jdpim._pi_sensitivity import _check_noise_resolution
 
-    nodes = SimpleNamespace(x=np.linspace(0.0, 2.0, 5), v=np.linspace(-1.0, 1.0, 21))  # dv = 0.1
+    nodes = SimpleNamespace(
+        x=np.linspace(0.0, 2.0, 5, dtype=np.float32), v=np.linspace(-1.0, 1.0, 21, dtype=np.float32)
+    )
     _check_noise_resolution(elastic, jdpim.PathIntegration(tau=0.2), nodes)  # sqrt(0.05 * 0.2) = 0.1: 1 spacing
     with pytest.warns(jdpim.SensitivityWarning, match="raise n_v or tau"):
         _check_noise_resolution(elastic, jdpim.PathIntegration(tau=0.1), nodes)  # 0.71 spacings
+
+
+@pytest.mark.slow
+def test_default_call_at_stationarity_and_energy_dependent_damping():
+    """The issue's acceptance cases with the defaults (about a minute on 2 cores).
+
+    Measured (float32, default grid, h = 0.1, x in [0, 3]): r = 1, alpha = D = 0.05, t = 200: relative L2 error
+    1.5e-4 (alpha) and 2.2e-4 (D); ``(alpha + beta H) x'``, alpha = beta = D = 0.05: 2.1e-4 (beta).
+    """
+    a, d, b, t, h = 0.05, 0.05, 0.05, 200.0, 0.1
+    xs = np.linspace(0.0, 3.0, 61)
+    scene = jdpim.Scene(jdpim.VibroImpactOscillator(alpha=a, gamma=None, r=1.0), noise=jdpim.WhiteNoise(D=d), t_end=t)
+    out = jdpim.sensitivity(scene, ("alpha", "D"), "x", xs, bandwidth=h)
+    assert out.method == "path_integration"
+    e = 1e-6
+    for name, (lo, hi) in {"alpha": ((a - e, d), (a + e, d)), "D": ((a, d - e), (a, d + e))}.items():
+        pdf = []
+        for aa, dd in (lo, hi):
+            s2 = exact.linear_covariance(aa, dd, t)[0] + h**2
+            pdf.append(2 * np.exp(-0.5 * xs**2 / s2) / np.sqrt(2 * np.pi * s2))
+        ref = (pdf[1] - pdf[0]) / (2 * e)
+        assert np.linalg.norm(out[name] - ref) / np.linalg.norm(ref) < 2e-3, name
+
+    model = jdpim.Oscillator(
+        params={"alpha": a, "beta": b},
+        g=lambda x, p: x,
+        f=lambda x, v, p: (p["alpha"] + p["beta"] * (0.5 * v**2 + 0.5 * x**2)) * v,
+        r=1.0,
+    )
+    out = jdpim.sensitivity(scene.replace(model=model), ("beta",), "x", xs, bandwidth=h)
+    u, vv = np.linspace(0, 8, 2001), np.linspace(-8, 8, 2001)
+
+    def reference(beta):
+        X, V = np.meshgrid(u, vv, indexing="ij")
+        H_ = 0.5 * X**2 + 0.5 * V**2
+        px = np.trapezoid(np.exp(-(a * H_ + beta * H_**2 / 2) / d), vv, axis=1)
+        px /= np.trapezoid(px, u)
+        z = lambda s: np.exp(-0.5 * (s / h) ** 2) / (h * np.sqrt(2 * np.pi))  # noqa: E731
+        return np.trapezoid((z(xs[:, None] - u) + z(xs[:, None] + u)) * px, u, axis=1)
+
+    ref = (reference(b + 1e-5) - reference(b - 1e-5)) / 2e-5
+    assert np.linalg.norm(out["beta"] - ref) / np.linalg.norm(ref) < 2e-3
