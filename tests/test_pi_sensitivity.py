@@ -161,3 +161,15 @@ def test_default_call_at_stationarity_and_energy_dependent_damping():
 
     ref = (reference(b + 1e-5) - reference(b - 1e-5)) / 2e-5
     assert np.linalg.norm(out["beta"] - ref) / np.linalg.norm(ref) < 2e-3
+
+
+def test_joint_derivative_integrates_to_the_marginal(elastic):
+    """The same nodal density and kernels: integrating ``dp(x, v)`` over ``v`` gives ``dp(x)``."""
+    vg = np.linspace(-4.0, 4.0, 161)
+    kw = {"settings": SETTINGS, "stationary": True}
+    joint = jdpim.sensitivity(elastic, ("alpha", "D"), "xv", (XS, vg), bandwidth=(H, 0.15), **kw)
+    marginal = jdpim.sensitivity(elastic, ("alpha", "D"), "x", XS, bandwidth=H, **kw)
+    for name in ("alpha", "D"):
+        assert joint[name].shape == (XS.size, vg.size)
+        integral = np.trapezoid(np.asarray(joint[name]), vg, axis=1)
+        np.testing.assert_allclose(integral, marginal[name], atol=2e-3 * np.abs(marginal[name]).max())
