@@ -1,16 +1,20 @@
-r"""Sensitivities ``dp(y, t) / d theta`` of response PDFs, by DPIM or Monte Carlo, at any horizon.
+r"""Sensitivities ``dp(y, t) / d theta`` of response PDFs at any horizon: path integration, DPIM or Monte Carlo.
+
+Path integration (``method="path_integration"``, what ``"auto"`` picks for the one-degree-of-freedom scenes
+it accepts) differentiates ``jdpim.path_integration`` with ``jax.jacfwd`` (``jdpim._pi_sensitivity``): no
+sampling error. The sampling methods write
 
 .. math::  \frac{\partial p(y, t)}{\partial \theta} \approx \sum_i w_i \, c_i(y)
 
 with per-path contributions ``c_i`` from an estimator per parameter (``jdpim._estimators``): a likelihood
 ratio (Girsanov score) for drift parameters, the exact noise scaling for ``D``, central differences with
-common random numbers for ``r`` and ``barrier``, or pathwise AD through the pipeline (exact for the
-computed density, but only over short horizons when there are impacts). ``estimator="auto"`` picks the
-pathwise derivative for models without a barrier (it is exact and bounded there) and otherwise the
-bounded estimators. docs/gradients.md says which to use when.
+common random numbers for ``r``, or pathwise AD through the pipeline (exact for the computed density, but
+only over short horizons when there are impacts). ``estimator="auto"`` picks the pathwise derivative for
+models without a barrier (it is exact and bounded there) and otherwise the bounded estimators.
+docs/gradients.md says which to use when.
 
 Bandwidth: ``None`` uses the rule-based ``sigma`` at the nominal parameters, held fixed, so every estimator
-targets the derivative of the same smoothed density ``p * K_sigma``.
+targets the derivative of the same smoothed density ``p * K_sigma`` (path integration: no smoothing).
 """
 
 from __future__ import annotations
