@@ -48,6 +48,7 @@ from ._path_integration import PathIntegration
 from ._pi_sensitivity import nominal_run, path_integration_sensitivity
 from ._pipelines import dpim_inputs, monte_carlo_inputs, run_paths
 from ._points import PointSet
+from ._pytree import check_real
 from ._result import Result
 from ._scene import Scene
 
@@ -298,6 +299,8 @@ def sensitivity(
         raise ValueError("n_points and points are for method='dpim'; use n_samples with method='monte_carlo'")
     if isinstance(bandwidth, str) and bandwidth != "adaptive":
         raise ValueError(f"bandwidth must be None, 'adaptive' or a number, got {bandwidth!r}")
+    if bandwidth is not None and not isinstance(bandwidth, str):
+        check_real("bandwidth", bandwidth, low=0.0, low_open=True)
     wrt = tuple(wrt)
     if not wrt:
         raise ValueError("wrt must name at least one parameter")

@@ -92,6 +92,8 @@ def test_path_integration_refusals(elastic):
         jdpim.sensitivity(elastic, ("alpha",), "x", XS, T, stationary=True, **kw)
     with pytest.raises(ValueError, match="bandwidth=None"):
         jdpim.sensitivity(elastic, ("alpha",), "x", XS, method="path_integration", bandwidth="adaptive")
+    with pytest.raises(ValueError, match=r"bandwidth must lie in \(0, inf\)"):
+        jdpim.sensitivity(elastic, ("alpha",), "x", XS, bandwidth=-0.1, settings=SETTINGS)
     with pytest.raises(TypeError, match="jdpim.PathIntegration"):
         jdpim.sensitivity(elastic, ("alpha",), "x", XS, settings={"n_x": 61})
     random = elastic.replace(random=(("alpha", jdpim.Uniform(0.05, 0.15)),))
