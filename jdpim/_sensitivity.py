@@ -276,8 +276,10 @@ def sensitivity(
         its ``stderr`` is zero and ``estimators`` holds the ``PathIntegration`` settings used (its grid
         error, measured in docs/gradients.md, is about 1e-3 relative at the defaults). A
         :class:`SensitivityWarning` flags pathwise results beyond their horizon or exploding, results
-        whose standard error exceeds a quarter of their size, and non-finite path-integration derivatives;
-        path integration's own ``PathIntegrationWarning`` reports its nominal grid.
+        whose standard error exceeds a quarter of their size, non-finite path-integration derivatives,
+        transient ones within ``10 t0`` of the start (its linearised start density shows there) and ``dp/dD``
+        on a velocity grid too coarse for one step's diffusion; path integration's own
+        ``PathIntegrationWarning`` reports its nominal grid.
 
     Example:
         >>> import jdpim, numpy as np
