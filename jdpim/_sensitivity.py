@@ -1,21 +1,26 @@
-r"""Sensitivities ``dp(y, t) / d theta`` of response PDFs, by DPIM or Monte Carlo, at any horizon.
+r"""Sensitivities ``dp(y, t) / d theta`` of response PDFs at any horizon: path integration, DPIM or Monte Carlo.
+
+Path integration (``method="path_integration"``, what ``"auto"`` picks for the one-degree-of-freedom scenes
+it accepts) differentiates ``jdpim.path_integration`` with ``jax.jacfwd`` (``jdpim._pi_sensitivity``): no
+sampling error. The sampling methods write
 
 .. math::  \frac{\partial p(y, t)}{\partial \theta} \approx \sum_i w_i \, c_i(y)
 
 with per-path contributions ``c_i`` from an estimator per parameter (``jdpim._estimators``): a likelihood
 ratio (Girsanov score) for drift parameters, the exact noise scaling for ``D``, central differences with
-common random numbers for ``r`` and ``barrier``, or pathwise AD through the pipeline (exact for the
-computed density, but only over short horizons when there are impacts). ``estimator="auto"`` picks the
-pathwise derivative for models without a barrier (it is exact and bounded there) and otherwise the
-bounded estimators. docs/gradients.md says which to use when.
+common random numbers for ``r``, or pathwise AD through the pipeline (exact for the computed density, but
+only over short horizons when there are impacts). ``estimator="auto"`` picks the pathwise derivative for
+models without a barrier (it is exact and bounded there) and otherwise the bounded estimators.
+docs/gradients.md says which to use when.
 
 Bandwidth: ``None`` uses the rule-based ``sigma`` at the nominal parameters, held fixed, so every estimator
-targets the derivative of the same smoothed density ``p * K_sigma``.
+targets the derivative of the same smoothed density ``p * K_sigma`` (path integration: no smoothing).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 import warnings
 from collections.abc import Mapping, Sequence
 
@@ -35,47 +40,24 @@ from ._estimators import (
     check_likelihood_ratio,
     get_parameter,
     noise_scaling_applies,
-    set_parameter,
+    parameter_names,
     window_of,
+    with_parameters,
 )
-from ._models import Oscillator
+from ._path_integration import PathIntegration
+from ._pi_sensitivity import nominal_run, path_integration_sensitivity
 from ._pipelines import dpim_inputs, monte_carlo_inputs, run_paths
 from ._points import PointSet
+from ._pytree import check_real
 from ._result import Result
 from ._scene import Scene
 
-NOISE_PARAMETERS = ("D",)
 VARIABLES = ("x", "v", "xv")
-METHODS = ("dpim", "monte_carlo")
-DEFAULT_PATHS = {"dpim": 1000, "monte_carlo": 100_000}
+METHODS = ("auto", "path_integration", "dpim", "monte_carlo")
+DEFAULT_PATHS = {"dpim": 100_000, "monte_carlo": 100_000}  # ~5 % at stationarity (docs/gradients.md)
 STDERR_WARN = 0.25  # relative L2 standard error above which a result is flagged
 EXPLOSION = 1e3  # |theta dp/dtheta| / max p above which a pathwise result is flagged
 _CHUNK = 512
-
-
-def parameter_names(scene: Scene) -> tuple[str, ...]:
-    """Names :func:`sensitivity` accepts: the model's traced fields, keys of a dict ``Oscillator.params``, ``"D"``."""
-    fields = dataclasses.fields(scene.model)
-    model = tuple(f.name for f in fields if not f.metadata.get("static", False) and f.name != "params")
-    if isinstance(scene.model, Oscillator) and isinstance(scene.model.params, dict):
-        model = model + tuple(k for k in scene.model.params if k not in model and isinstance(k, str))
-    return model + NOISE_PARAMETERS
-
-
-def with_parameters(scene: Scene, values: dict) -> Scene:
-    """``scene`` with named parameters replaced, e.g. ``{"alpha": 0.05, "D": 0.08}`` (values may be traced)."""
-    allowed = parameter_names(scene)
-    unknown = sorted(set(values) - set(allowed))
-    if unknown:
-        raise ValueError(f"unknown parameter(s) {unknown}; choose from {list(allowed)}")
-    model = scene.model
-    for name, value in values.items():
-        if name not in NOISE_PARAMETERS:
-            model = set_parameter(model, name, value)
-    scene = scene.replace(model=model)
-    if "D" in values:
-        scene = scene.replace(noise=dataclasses.replace(scene.noise, D=values["D"]))
-    return scene
 
 
 def _nominal(scene: Scene, name: str):
@@ -91,15 +73,18 @@ class Sensitivity(Mapping):
 
     Attributes:
         value: ``{name: array}``, shaped like the PDF, in PDF units per parameter unit.
-        stderr: ``{name: array}`` of the same shapes (NaN for :class:`Pathwise`, which has none).
-        estimators: ``{name: estimator}`` actually used.
-        t: the time of the derivative, s.
+        stderr: ``{name: array}`` of the same shapes: the sampling error (NaN for :class:`Pathwise`, which
+            does not estimate it; zero for path integration, which has none).
+        estimators: ``{name: estimator}`` actually used (the ``PathIntegration`` settings for path integration).
+        t: the time of the derivative, s (``inf`` for a stationary density).
+        method: ``"path_integration"``, ``"dpim"`` or ``"monte_carlo"``.
     """
 
     value: dict
     stderr: dict
     estimators: dict
     t: float
+    method: str = "dpim"
 
     def __getitem__(self, name):
         return self.value[name]
@@ -109,6 +94,28 @@ class Sensitivity(Mapping):
 
     def __len__(self):
         return len(self.value)
+
+
+def _method(method, n_points, points, n_samples, estimator, bandwidth, settings, stationary) -> str:
+    """The method :func:`sensitivity` runs (``"auto"`` stays open when path integration may apply), after checks."""
+    sizes = [n for n, v in (("n_points", n_points), ("points", points), ("n_samples", n_samples)) if v is not None]
+    sampling_only = not (isinstance(estimator, str) and estimator == "auto") or isinstance(bandwidth, str)
+    if method == "auto":
+        if stationary or settings is not None:
+            method = "path_integration"
+        elif sizes or sampling_only:
+            method = "monte_carlo" if n_samples is not None or not sizes else "dpim"
+    if method == "path_integration":
+        if sizes:
+            raise ValueError(f"{sizes} are for the sampling methods; path integration takes settings=")
+        if not (isinstance(estimator, str) and estimator == "auto"):
+            raise ValueError(f"estimator is for the sampling methods, not path integration; got {estimator!r}")
+        if isinstance(bandwidth, str):
+            raise ValueError(f"path integration takes bandwidth=None (grid density) or a number, got {bandwidth!r}")
+    elif method != "auto" and (stationary or settings is not None):
+        what = "stationary=True" if stationary else "settings"
+        raise ValueError(f"{what} is for method='path_integration', not method={method!r}")
+    return method
 
 
 def _density(res: Result, var: str, grid, t, bandwidth, rule: str):
@@ -215,7 +222,7 @@ def sensitivity(
     grid=None,
     t: float | None = None,
     *,
-    method: str = "dpim",
+    method: str = "auto",
     n_points: int | None = None,
     points: PointSet | None = None,
     n_samples: int | None = None,
@@ -224,6 +231,8 @@ def sensitivity(
     rule: str = "chen",
     estimator="auto",
     chunk_size: int | None = None,
+    settings: PathIntegration | None = None,
+    stationary: bool = False,
 ) -> Sensitivity:
     r"""Derivatives ``dp(y, t) / d theta`` of the PDF on a grid, with standard errors, for each name in ``wrt``.
 
@@ -234,22 +243,43 @@ def sensitivity(
         var: ``"x"``, ``"v"`` (marginal PDFs) or ``"xv"`` (joint PDF).
         grid: evaluation grid, 1-D for ``"x"``/``"v"``, a pair ``(x_grid, v_grid)`` for ``"xv"``. Keep
             ``x`` nodes off the barrier when differentiating with respect to ``barrier``.
-        t: a saved time of the scene (default: the last one).
-        method: ``"dpim"`` (representative points, weights ``P_q``) or ``"monte_carlo"`` (weights ``1/N``).
-        n_points, points: DPIM point count or point set (default ``DEFAULT_PATHS["dpim"]`` points).
-        n_samples, seed: Monte Carlo sample count (default ``DEFAULT_PATHS["monte_carlo"]``) and seed.
-        bandwidth: ``None`` (rule-based at the nominal parameters, held fixed), ``"adaptive"`` (pathwise
-            only: the rule is differentiated too), or fixed kernel standard deviation(s): a number, or a
-            pair ``(sigma_x, sigma_v)`` for ``"xv"``.
+        t: a saved time of the scene (default: the last one); leave it out with ``stationary=True``.
+        method: ``"auto"`` (default): ``"dpim"`` when ``n_points``/``points`` are given, ``"monte_carlo"``
+            when ``n_samples`` (or a sampling ``estimator``, or ``bandwidth="adaptive"``) is given, else
+            ``"path_integration"`` where ``jdpim.path_integration`` accepts the scene (no random parameters,
+            ``0 < r <= 1``, ``t`` its start ``PathIntegration.t0`` plus whole steps ``tau``), else
+            ``"monte_carlo"``. ``"path_integration"``: ``jax.jacfwd`` through ``jdpim.path_integration``
+            (transient from the scene's start, or its stationary density). ``"dpim"``: representative
+            points, weights ``P_q``. ``"monte_carlo"``: weights ``1/N``.
+        n_points, points: DPIM point count or point set (default ``DEFAULT_PATHS["dpim"]``, 1e5 points).
+        n_samples, seed: Monte Carlo sample count (default ``DEFAULT_PATHS["monte_carlo"]``, 1e5) and seed.
+            DPIM's points are worth about as many Monte Carlo paths: at t = 200 (r = 1, bandwidth 0.1) 1e5
+            give standard errors of about 2.5 % (drift parameters) and 6 % (D).
+        bandwidth: ``None`` (sampling methods: the rule's value at the nominal parameters, held fixed; path
+            integration: no smoothing, the derivative of the grid density interpolated to ``grid``),
+            ``"adaptive"`` (pathwise only: the rule is differentiated too), or fixed kernel standard
+            deviation(s) (a number, or a pair ``(sigma_x, sigma_v)`` for ``"xv"``): every method then
+            differentiates the density smoothed with the same kernel (reflected at the barrier).
         rule: bandwidth rule for ``None``/``"adaptive"`` (see ``jdpim.bandwidth``).
         estimator: ``"auto"``, an estimator (:class:`Pathwise`, :class:`LikelihoodRatio`,
-            :class:`NoiseScaling`, :class:`CentralDifference`) for every name, or a dict ``name -> estimator``.
+            :class:`NoiseScaling`, :class:`CentralDifference`) for every name, or a dict ``name -> estimator``
+            (sampling methods only).
         chunk_size: paths per chunk of the simulation (``None``: memory-based default).
+        settings: ``jdpim.PathIntegration`` grid settings (path integration only; default
+            ``PathIntegration()``). The grid extents are those of the nominal parameters, held fixed.
+        stationary: path integration only: the derivative of the stationary density (implicit
+            differentiation of its fixed point); ``t`` is then left out and ``Sensitivity.t`` is ``inf``.
 
     Returns:
         :class:`Sensitivity`: ``name -> array`` shaped like the PDF (``(G,)`` or ``(Gx, Gv)``), with
-        ``.value``, ``.stderr`` and ``.estimators``. A :class:`SensitivityWarning` flags pathwise results
-        beyond their horizon or exploding, and results whose standard error exceeds a quarter of their size.
+        ``.value``, ``.stderr``, ``.estimators`` and ``.method``. Path integration has no sampling error:
+        its ``stderr`` is zero and ``estimators`` holds the ``PathIntegration`` settings used (its grid
+        error, measured in docs/gradients.md, is about 1e-3 relative at the defaults). A
+        :class:`SensitivityWarning` flags pathwise results beyond their horizon or exploding, results
+        whose standard error exceeds a quarter of their size, non-finite path-integration derivatives,
+        transient ones within ``10 t0`` of the start (its linearised start density shows there) and ``dp/dD``
+        on a velocity grid too coarse for one step's diffusion; path integration's own
+        ``PathIntegrationWarning`` reports its nominal grid.
 
     Example:
         >>> import jdpim, numpy as np
@@ -264,12 +294,15 @@ def sensitivity(
         raise ValueError(f"var must be one of {VARIABLES}, got {var!r}")
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    method = _method(method, n_points, points, n_samples, estimator, bandwidth, settings, stationary)
     if method == "dpim" and n_samples is not None:
         raise ValueError("n_samples is for method='monte_carlo'; use n_points or points with method='dpim'")
     if method == "monte_carlo" and (n_points is not None or points is not None):
         raise ValueError("n_points and points are for method='dpim'; use n_samples with method='monte_carlo'")
     if isinstance(bandwidth, str) and bandwidth != "adaptive":
         raise ValueError(f"bandwidth must be None, 'adaptive' or a number, got {bandwidth!r}")
+    if bandwidth is not None and not isinstance(bandwidth, str):
+        check_real("bandwidth", bandwidth, low=0.0, low_open=True)
     wrt = tuple(wrt)
     if not wrt:
         raise ValueError("wrt must name at least one parameter")
@@ -278,9 +311,27 @@ def sensitivity(
         raise ValueError(f"unknown parameter(s) {bad}; choose from {list(parameter_names(scene))}")
     if grid is None:
         raise ValueError("grid is required")
-    t = scene.save_at[-1] if t is None else t
-    t = scene.save_at[scene.time_index(t)]
+    if stationary:
+        if t is not None:
+            raise ValueError(f"t={t!r} with stationary=True: the stationary density has no time; leave t out")
+        t = math.inf
+    else:
+        t = scene.save_at[-1] if t is None else t
+        t = scene.save_at[scene.time_index(t)]
     values = {name: _nominal(scene, name) for name in wrt}
+    if method in ("auto", "path_integration"):
+        try:
+            nominal = nominal_run(scene, settings, t, stationary)
+        except (TypeError, ValueError):
+            if method == "path_integration":
+                raise
+            nominal = None  # path integration refuses the scene (random parameters, r = 0, t off its steps)
+        if nominal is not None:
+            pi_bandwidth = tuple(bandwidth) if var == "xv" and bandwidth is not None else bandwidth
+            value, used = path_integration_sensitivity(nominal, values, var, grid, t, pi_bandwidth, stationary)
+            stderr = {n: jnp.zeros_like(value[n]) for n in wrt}
+            return Sensitivity({n: value[n] for n in wrt}, stderr, dict.fromkeys(wrt, used), t, "path_integration")
+        method = "monte_carlo"
     estimators = _estimators(scene, wrt, estimator)
     if bandwidth == "adaptive" and not all(isinstance(e, Pathwise) for e in estimators.values()):
         raise ValueError("bandwidth='adaptive' needs the Pathwise estimator for every parameter")
@@ -307,12 +358,14 @@ def sensitivity(
             rel = float(jnp.linalg.norm(e[name]) / jnp.maximum(jnp.linalg.norm(v[name]), 1e-300))
             if not rel < STDERR_WARN:
                 warnings.warn(
-                    f"dp/d{name}: standard error {rel:.2g} of the value (relative L2); use more paths "
-                    "(n_points / n_samples) or a wider bandwidth",
+                    f"dp/d{name}: standard error {rel:.2g} of the value (relative L2): it falls like 1/sqrt(paths); "
+                    f"5 % at stationarity takes about 1e5 paths or points for drift parameters and 3e5 for D at "
+                    "bandwidth 0.1 (n_samples / n_points), a wider bandwidth, or method='path_integration' "
+                    "(one-degree-of-freedom scenes, no sampling error)",
                     SensitivityWarning,
                     stacklevel=2,
                 )
-    return Sensitivity({n: value[n] for n in wrt}, {n: stderr[n] for n in wrt}, estimators, float(t))
+    return Sensitivity({n: value[n] for n in wrt}, {n: stderr[n] for n in wrt}, estimators, float(t), method)
 
 
 def _pathwise(scene, names, estimators, var, grid, t, values, bandwidth, rule, method, rows, weights, chunk):

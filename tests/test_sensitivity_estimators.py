@@ -109,7 +109,7 @@ def test_estimators_refuse_what_they_cannot_do():
     with pytest.raises(ValueError, match="start is not at rest"):
         jdpim.sensitivity(scene, ("D",), "x", XS + 1.5, estimator=NoiseScaling())
     with pytest.raises(ValueError, match="n_samples is for"):
-        jdpim.sensitivity(scene, ("alpha",), "x", XS + 1.5, n_samples=100)
+        jdpim.sensitivity(scene, ("alpha",), "x", XS + 1.5, method="dpim", n_samples=100)
     with pytest.raises(TypeError, match="estimator for 'alpha'"):
         jdpim.sensitivity(scene, ("alpha",), "x", XS + 1.5, estimator="pathwise")
 

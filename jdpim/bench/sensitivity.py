@@ -1,10 +1,11 @@
 """Sensitivity estimators: error against exact derivatives versus cost, per estimator and horizon.
 
 Case: r = 1, gamma = 0 (the linear oscillator mirrored at the barrier), alpha = D = 0.05, start at rest on
-the barrier, dt = 0.02, Monte Carlo paths. The exact PDF at time t is the folded Gaussian with the
-variance of ``jdpim.exact.linear_covariance``; smoothed with the reflected kernel of fixed width h = 0.1
-it stays a folded Gaussian (variance + h^2), so ``dp/dalpha`` and ``dp/dD`` of the smoothed density are
-closed-form. Error: relative L2 over x in [0, 3]; ``stderr``: the estimator's own standard error, same norm.
+the barrier, dt = 0.02, Monte Carlo paths for the sampling estimators; path integration (``jax.jacfwd``
+through ``jdpim.path_integration``, no sampling error) on two grids. The exact PDF at time t is the folded
+Gaussian with the variance of ``jdpim.exact.linear_covariance``; smoothed with the reflected kernel of fixed
+width h = 0.1 it stays a folded Gaussian (variance + h^2), so ``dp/dalpha`` and ``dp/dD`` of the smoothed
+density are closed-form. Error: relative L2 over x in [0, 3]; ``stderr``: the estimator's own standard error, same norm.
 Protocol: one warm-up call (compilation), then ``repeats`` timed calls, median wall time.
 """
 
@@ -24,6 +25,7 @@ from .. import exact
 from .._estimators import CentralDifference, LikelihoodRatio, NoiseScaling, Pathwise, SensitivityWarning
 from .._models import VibroImpactOscillator
 from .._noise import WhiteNoise
+from .._path_integration import PathIntegration
 from .._scene import Scene
 from .._sensitivity import sensitivity
 
@@ -37,6 +39,7 @@ class Plan:
     paths: tuple = (10_000, 100_000)
     pathwise_paths: int = 1000
     repeats: int = 3
+    grids: tuple = (PathIntegration(n_x=61, n_v=121, tau=0.1), PathIntegration())
 
 
 QUICK = Plan(horizons=(10.0, 50.0), paths=(2000, 8000), pathwise_paths=500, repeats=1)
@@ -55,13 +58,17 @@ def _reference(name: str, t: float) -> np.ndarray:
 
 def _row(t, name, estimator, n, repeats):
     scene = Scene(VibroImpactOscillator(alpha=ALPHA, gamma=None, r=1.0), noise=WhiteNoise(D=D), t_end=t, dt=DT)
+    if isinstance(estimator, PathIntegration):
+        kwargs = {"method": "path_integration", "settings": estimator}
+        label = f"PathIntegration {estimator.n_x}x{estimator.n_v}, tau {estimator.tau:g}"
+    else:
+        kwargs = {"method": "monte_carlo", "n_samples": n, "estimator": estimator}
+        label = type(estimator).__name__
 
     def call():
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", SensitivityWarning)
-            out = sensitivity(
-                scene, (name,), "x", XS, method="monte_carlo", n_samples=n, bandwidth=H, estimator=estimator
-            )
+            out = sensitivity(scene, (name,), "x", XS, bandwidth=H, **kwargs)
             np.asarray(out[name])
         return out, [str(w.message)[:60] for w in caught if issubclass(w.category, SensitivityWarning)]
 
@@ -79,10 +86,10 @@ def _row(t, name, estimator, n, repeats):
     return {
         "t": t,
         "parameter": name,
-        "estimator": type(estimator).__name__,
+        "estimator": label,
         "paths": n,
         "rel_l2_error": float(np.linalg.norm(value - ref) / scale),
-        "rel_stderr": float(np.linalg.norm(err) / scale) if np.all(np.isfinite(err)) else None,
+        "rel_stderr": float(np.linalg.norm(err) / scale) if np.all(np.isfinite(err)) and n else None,
         "first_call_s": first,
         "median_s": statistics.median(times),
         "warned": bool(warned),
@@ -94,7 +101,8 @@ def run_sensitivity(out: pathlib.Path, *, quick: bool = False, log=print) -> lis
     plan = QUICK if quick else Plan()
     rows = []
     for t in plan.horizons:
-        cases = [("alpha", Pathwise(), plan.pathwise_paths)]
+        cases = [(name, grid, 0) for grid in plan.grids for name in ("alpha", "D")]
+        cases += [("alpha", Pathwise(), plan.pathwise_paths)]
         for n in plan.paths:
             cases += [("alpha", LikelihoodRatio(), n), ("alpha", CentralDifference(), n), ("D", NoiseScaling(), n)]
         for name, est, n in cases:
@@ -108,7 +116,8 @@ def run_sensitivity(out: pathlib.Path, *, quick: bool = False, log=print) -> lis
     lines = [
         f"# Sensitivity estimators{' (quick)' if quick else ''}",
         "",
-        f"r = 1, gamma = 0, alpha = D = {ALPHA}, dt = {DT}, h = {H}, Monte Carlo; load average at the end "
+        f"r = 1, gamma = 0, alpha = D = {ALPHA}, dt = {DT}, h = {H}; Monte Carlo paths for the sampling estimators, "
+        "path integration (no paths, no sampling error) on two grids; load average at the end "
         f"{load[0]:.1f} on {os.cpu_count()} cores (timings on a shared machine).",
         "",
         "| t | parameter | estimator | paths | rel. L2 error | rel. stderr | first call s | median s | warned |",
@@ -117,7 +126,8 @@ def run_sensitivity(out: pathlib.Path, *, quick: bool = False, log=print) -> lis
     for r in rows:
         se = "-" if r["rel_stderr"] is None else f"{r['rel_stderr']:.3f}"
         lines.append(
-            f"| {r['t']:g} | {r['parameter']} | {r['estimator']} | {r['paths']} | {r['rel_l2_error']:.3g} | {se} | "
+            f"| {r['t']:g} | {r['parameter']} | {r['estimator']} | {r['paths'] or '-'} | {r['rel_l2_error']:.3g} | "
+            f"{se} | "
             f"{r['first_call_s']:.1f} | {r['median_s']:.1f} | {'yes' if r['warned'] else 'no'} |"
         )
     (out / f"{stem}.md").write_text("\n".join(lines) + "\n")
