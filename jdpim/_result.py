@@ -37,7 +37,7 @@ class Result:
         return int(np.shape(self.weights)[0])
 
     def _index(self, t) -> int:
-        return saved_index(tuple(np.asarray(self.times).tolist()), t)
+        return saved_index(np.asarray(self.times), t)
 
     def samples(self, var: str, t: float):
         """The values of ``var`` (``"x"`` or ``"v"``) of every path at saved time ``t``; shape ``(N,)``."""

@@ -167,7 +167,8 @@ def saved_index(save_at: Sequence[float], t: float) -> int:
     """Index of ``t`` among the saved times, with a clear error when it was not saved."""
     check_real("t", t)
     times = np.asarray(save_at)
+    rel = max(1e-9, 4 * float(np.finfo(times.dtype).eps)) if times.dtype.kind == "f" else 1e-9  # float32 times
     i = int(np.argmin(np.abs(times - float(t))))
-    if abs(times[i] - float(t)) > 1e-9 * max(1.0, abs(float(t))):
-        raise ValueError(f"t={t!r} was not saved; saved times are {list(save_at)}")
+    if abs(float(times[i]) - float(t)) > rel * max(1.0, abs(float(t))):
+        raise ValueError(f"t={t!r} was not saved; saved times are {times.tolist()}")
     return i

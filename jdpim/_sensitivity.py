@@ -266,7 +266,9 @@ def sensitivity(
             (sampling methods only).
         chunk_size: paths per chunk of the simulation (``None``: memory-based default).
         settings: ``jdpim.PathIntegration`` grid settings (path integration only; default
-            ``PathIntegration()``). The grid extents are those of the nominal parameters, held fixed.
+            ``PathIntegration()``, or for transient ``t < 10`` s the finer, earlier start
+            ``PathIntegration(t0=0.25, n_x=241, n_v=481, tau=0.025)``, about 4x dearer). The grid extents
+            are those of the nominal parameters, held fixed.
         stationary: path integration only: the derivative of the stationary density (implicit
             differentiation of its fixed point); ``t`` is then left out and ``Sensitivity.t`` is ``inf``.
 

@@ -159,3 +159,15 @@ def test_valid_inputs_pass(result):
     for r in (0.0, 1.0):
         scene(model=model(r=r), noise=jdpim.WhiteNoise(D=0.0), save_at=(0.0, 10.0))
     assert np.asarray(result.pdf("x", [0.0, 0.5, 1.0], 2.0)).shape == (3,)
+
+
+def test_saved_times_match_at_their_own_precision():
+    """A float32 result stores 0.2 as 0.2000000030: asking for t = 0.2 finds it, t = 0.2001 does not."""
+    from jdpim._scene import saved_index
+
+    times = np.asarray([0.1, 0.2], np.float32)
+    assert saved_index(times, 0.2) == 1
+    with pytest.raises(ValueError, match=r"t=0\.2001 was not saved"):
+        saved_index(times, 0.2001)
+    with pytest.raises(ValueError, match=r"t=0\.2000001 was not saved"):
+        saved_index((0.1, 0.2), 0.2000001)  # float64 times keep the tight tolerance
