@@ -29,6 +29,10 @@ class GridResult:
         residual: stationary solve only: ``||T p - p||_1`` of the one-step operator ``T`` (else ``nan``).
         step_gain: stationary solve only: mass kept by one step before renormalisation (1 = nothing lost).
         newton_steps: stationary solve only: Newton (GMRES) steps taken (0 for a transient result).
+        virial: stationary solve only: ``(E[v^2] + E[(x - b) a(x, v)]) / E[v^2]`` with ``a`` the drift of ``v``
+            and ``b`` the barrier (0 without one), which is exactly zero for every stationary density (the
+            time derivative of ``E[(x - b) v]``; impacts happen at ``x = b`` and add nothing): a check of the
+            grid's resolution, chiefly of the velocity marginal (``nan`` for a transient result).
         stationary: whether this is a stationary density (then ``t`` may be left out).
 
     Densities and moments use the trapezoidal rule on the nodes; ``pdf``/``joint_pdf`` interpolate
@@ -44,6 +48,7 @@ class GridResult:
     residual: Any
     step_gain: Any
     newton_steps: Any
+    virial: Any
     stationary: bool = static_field(default=False)
 
     def _index(self, t) -> int:
