@@ -22,10 +22,9 @@ import numpy as np
 
 from ._density import _kernel_matrix
 from ._estimators import SensitivityWarning, with_parameters
-from ._path_integration import PathIntegration, path_integration
+from ._path_integration import LINEAR_BELOW_R, PathIntegration, path_integration
 from ._scene import Scene
 
-LINEAR_BELOW_R = 0.5  # path_integration's order=None takes linear weights below this r (see PathIntegration)
 START_HORIZONS = 10.0  # t / t0 below which the point start's approximation shows in dp/dgamma, dp/dr (measured)
 D_RESOLUTION = 0.85  # sqrt(q tau) / dv below which dp/dD degrades (measured: 4e-2 at 0.67, 1.5e-3 at 0.89)
 # default settings for transient derivatives within START_HORIZONS x PathIntegration().t0 of a point start:
