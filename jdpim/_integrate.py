@@ -91,7 +91,7 @@ class Substeps:
 
 
 def _forcing(e, tau):
-    """Quadratic through ``e[0], e[1], e[2]`` at ``tau = 0, 1/2, 1``; ``e`` has shape ``(3, m)``."""
+    """Quadratic through ``e[0], e[1], e[2]`` at ``tau = 0, 1/2, 1`` (the three nodes, each ``(m,)`` or ``(n, m)``)."""
     if isinstance(tau, (int, float)) and tau in (0.0, 0.5, 1.0):
         return e[int(2 * tau)]  # the nodes themselves: no interpolation arithmetic in the plain step
     l0 = 2.0 * (tau - 0.5) * (tau - 1.0)
@@ -161,7 +161,7 @@ def departure(model, e, tau0, n_iter=5):
     The force at rest, ``F(tau) = a(b, 0, xi(tau))``, is affine in ``xi`` and so exactly the quadratic
     through its values at ``tau = 0, 1/2, 1``; the path leaves at the first ``tau`` with ``F(tau) > 0``.
     """
-    b = jnp.asarray(model.barrier, e.dtype)
+    b = jnp.asarray(model.barrier, e[0].dtype)
     f = jnp.stack([model.acceleration(b, jnp.zeros_like(b), e[i]) for i in range(3)])
     c0, c1, c2 = f[0], -3.0 * f[0] + 4.0 * f[1] - f[2], 2.0 * f[0] - 4.0 * f[1] + 2.0 * f[2]
 
@@ -219,7 +219,10 @@ def stiffness_rate(model, x, v, xi):
 
 
 def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None = None):
-    """The step for a batch of paths: ``(x, v, e, rand) -> (x, v)``, each ``(n,)``; ``e`` is ``(n, 3, m)``.
+    """The step for a batch of paths: ``(x, v, e, rand) -> (x, v)``, each ``(n,)``.
+
+    ``e`` is the forcing at the start, middle and end of the step: a tuple of three ``(n, m)`` arrays
+    (or one ``(n, 3, m)`` array).
 
     ``path_model(rand)`` builds one path's model from its random-parameter vector. Impacts are resolved
     on the crossing paths only: up to ``n / 16`` of them are gathered, resolved and scattered back;
@@ -299,7 +302,7 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
 
         def body(i, y):
             ta, tb = i / kf, (i + 1) / kf
-            sub_e = jax.vmap(lambda p: jnp.stack([_forcing(p, ta), _forcing(p, 0.5 * (ta + tb)), _forcing(p, tb)]))(e)
+            sub_e = tuple(_forcing(e, tau) for tau in (ta, 0.5 * (ta + tb), tb))
             return jax.lax.cond(i < k, lambda y: plain_step(*y, sub_e, rand, h / kf), lambda y: y, y)
 
         return jax.lax.fori_loop(0, n_max, body, (x, v))
@@ -346,19 +349,21 @@ def integrate(
     step = jax.checkpoint(make_batch_step(path_model, rule, h, substeps))
     n_half, n, m = excitation.shape
     T = (n_half - 1) // 2
-    pairs = excitation[1:].reshape(T, 2, n, m)
+
+    def nodes(k):
+        """The forcing of step ``k``: the excitation at its start, middle and end, each ``(n, m)``."""
+        return tuple(jax.lax.dynamic_index_in_dim(excitation, 2 * k + i, keepdims=False) for i in range(3))
 
     def body(carry, inputs):
-        x, v, e_prev, buf = carry
-        pair, slot = inputs
-        e = jnp.stack([e_prev, pair[0], pair[1]], axis=1)  # (n, 3, m)
-        x, v = step(x, v, e, rand)
+        x, v, buf = carry
+        k, slot = inputs
+        x, v = step(x, v, nodes(k), rand)
         buf = jax.lax.dynamic_update_index_in_dim(buf, jnp.stack([x, v], axis=-1), slot, axis=0)
-        return (x, v, pair[1], buf), None
+        return (x, v, buf), None
 
     buf = jnp.zeros((n_save + 1, n, 2), dtype=x0.dtype).at[initial_slot].set(jnp.stack([x0, v0], axis=-1))
     if accumulate is None:
-        (x, v, _, buf), _ = jax.lax.scan(body, (x0, v0, excitation[0], buf), (pairs, slots))
+        (x, v, buf), _ = jax.lax.scan(body, (x0, v0, buf), (jnp.arange(T), slots))
         return jnp.moveaxis(buf[:n_save], 0, 1)
 
     def increments(x, v, e, r):
@@ -366,15 +371,15 @@ def integrate(
         return accumulate(path_model(r), x, v, dw)
 
     def body_with_sums(carry, inputs):
-        (x, v, e_prev, buf), sums, sums_buf = carry
-        sums = sums + jax.vmap(increments)(x, v, jnp.stack([e_prev, inputs[0][0], inputs[0][1]], axis=1), rand)
+        (x, v, buf), sums, sums_buf = carry
+        sums = sums + jax.vmap(increments)(x, v, nodes(inputs[0]), rand)
         sums_buf = jax.lax.dynamic_update_index_in_dim(sums_buf, sums, inputs[1], axis=0)
-        return (body((x, v, e_prev, buf), inputs)[0], sums, sums_buf), None
+        return (body((x, v, buf), inputs)[0], sums, sums_buf), None
 
-    k = jax.eval_shape(increments, x0[0], v0[0], excitation[:3, 0], rand[0]).shape[0]
+    k = jax.eval_shape(increments, x0[0], v0[0], tuple(excitation[i, 0] for i in range(3)), rand[0]).shape[0]
     sums = jnp.zeros((n, k), x0.dtype)
-    init = ((x0, v0, excitation[0], buf), sums, jnp.zeros((n_save + 1, n, k), x0.dtype))
-    ((_, _, _, buf), _, sums_buf), _ = jax.lax.scan(body_with_sums, init, (pairs, slots))
+    init = ((x0, v0, buf), sums, jnp.zeros((n_save + 1, n, k), x0.dtype))
+    ((_, _, buf), _, sums_buf), _ = jax.lax.scan(body_with_sums, init, (jnp.arange(T), slots))
     return jnp.moveaxis(buf[:n_save], 0, 1), jnp.moveaxis(sums_buf[:n_save], 0, 1)
 
 

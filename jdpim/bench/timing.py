@@ -55,6 +55,9 @@ def timed(
 ) -> tuple[Result, Timing]:
     """Run ``method`` (``"dpim"`` or ``"monte_carlo"``) with ``n`` paths under the timing protocol.
 
+    One device: the run is :func:`jdpim._pipelines.simulate` (unsharded, unstreamed) on the default
+    device, not ``run_paths``; ``jdpim.bench.throughput`` times the sharded path over every device.
+
     Point selection (DPIM, cached) and key generation happen before the clock starts; the clock covers
     excitation, integration and the transfer of the saved states.
 
