@@ -4,6 +4,9 @@ Compilation dominates the cost of the suite on a 2-core CPU, so expensive result
 fixtures reused by many tests, and sizes are small. Heavier settings carry the ``slow`` marker.
 """
 
+import concurrent.futures
+import multiprocessing
+
 import jax
 import numpy as np
 import pytest
@@ -41,3 +44,33 @@ def x_grid():
 @pytest.fixture(scope="session")
 def v_grid():
     return np.linspace(-5.0, 5.0, 801)
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _release_compiled_code():
+    """Drop JAX's compiled executables after each module: the suite's peak memory stays that of one module."""
+    yield
+    jax.clear_caches()
+
+
+@pytest.fixture(autouse=True, scope="session")
+def notebook_runs(request, tmp_path_factory):
+    """The notebooks selected for this session, run one after another in a background process from its start.
+
+    Their kernels compile on the core the test process leaves idle (it compiles on one);
+    ``test_notebook_runs`` waits for each result. Maps a notebook's stem to a future.
+    """
+    from test_notebooks import NOTEBOOKS, execute
+
+    wanted = {
+        item.callspec.id
+        for item in request.session.items
+        if getattr(item, "originalname", None) == "test_notebook_runs"
+    }
+    spawn = multiprocessing.get_context("spawn")  # no fork of a process that runs JAX's threads
+    with concurrent.futures.ProcessPoolExecutor(max_workers=1, mp_context=spawn) as pool:
+        yield {
+            path.stem: pool.submit(execute, path, tmp_path_factory.mktemp(path.stem))
+            for path in NOTEBOOKS
+            if path.stem in wanted
+        }

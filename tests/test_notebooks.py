@@ -11,10 +11,17 @@ COLAB = "https://colab.research.google.com/github/jdpim/jdpim/blob/main/notebook
 WITH_BADGE = ("accuracy", "paper", "quickstart", "sensitivities")
 
 
-@pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.stem for p in NOTEBOOKS])
-def test_notebook_runs(path, tmp_path):
+def execute(path, workdir):
+    """Run one notebook top to bottom in a fresh kernel whose working directory is ``workdir``."""
     nb = nbformat.read(path, as_version=4)
-    NotebookClient(nb, timeout=600, kernel_name="python3", resources={"metadata": {"path": str(tmp_path)}}).execute()
+    NotebookClient(nb, timeout=600, kernel_name="python3", resources={"metadata": {"path": str(workdir)}}).execute()
+    return nb
+
+
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.stem for p in NOTEBOOKS])
+def test_notebook_runs(path, notebook_runs):
+    # started at the beginning of the session (conftest.py), so this waits for the kernel's result
+    nb = notebook_runs[path.stem].result()
     errors = [o for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", []) if o.output_type == "error"]
     assert not errors
 
