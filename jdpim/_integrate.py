@@ -264,24 +264,24 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
         return jnp.where((x == model.barrier) & (v == 0), departure(model, e, 0.0), 0.0)
 
     def per_path(fn, h):
-        """``fn`` vmapped over the paths, with a step length ``h`` shared (scalar) or per path ``(n,)``."""
+        """``fn(..., h=)`` vmapped over the paths, with a step length ``h`` shared (scalar) or per path ``(n,)``."""
         if jnp.ndim(h) == 0:
             return jax.vmap(functools.partial(fn, h=h))
-        return jax.vmap(lambda *args: fn(*args[:-1], h=args[-1]))
+        return lambda *args: jax.vmap(lambda *a: fn(*a[:-1], h=a[-1]))(*args, h)
 
     def resolve_crossing(state, e, rand, barrier, h):
         n = barrier.shape[0]
         cap = max(1, -(-n // 16))
         hit = state[2][0] < barrier
-        hs = () if jnp.ndim(h) == 0 else (h,)
 
         def all_paths(state):
-            return per_path(resolve, h)(*state, e, rand, *hs)
+            return per_path(resolve, h)(*state, e, rand)
 
         def compacted(state):
             idx = jnp.nonzero(hit, size=cap, fill_value=n)[0]
-            sub_state, sub_e, sub_rand, sub_h = _gather(idx, (state, e, rand, hs))
-            return _scatter(idx, state, per_path(resolve, h)(*sub_state, sub_e, sub_rand, *sub_h))
+            sub_state, sub_e, sub_rand = _gather(idx, (state, e, rand))
+            sub_h = h if jnp.ndim(h) == 0 else _gather(idx, h)
+            return _scatter(idx, state, per_path(resolve, sub_h)(*sub_state, sub_e, sub_rand))
 
         if cap >= n:
             return all_paths(state)
@@ -292,13 +292,12 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
 
     def plain_step(x, v, e, rand, h):
         """One step of every path; ``h`` is the step length, shared (scalar) or per path ``(n,)``."""
-        extra = () if jnp.ndim(h) == 0 else (h,)
         tau0 = jnp.zeros_like(x)
         if sticking:
             barrier = jax.vmap(lambda r: jnp.asarray(path_model(r).barrier, x.dtype))(rand)
             resting = (x == barrier) & (v == 0)
             tau0 = jax.lax.cond(jnp.any(resting), lambda: jax.vmap(start_fraction)(x, v, e, rand), lambda: tau0)
-        x1, v1 = per_path(free, h)(x, v, e, rand, tau0, *extra)
+        x1, v1 = per_path(free, h)(x, v, e, rand, tau0)
         if not shared.has_barrier:
             return x1, v1
         barrier = jax.vmap(lambda r: jnp.asarray(path_model(r).barrier, x.dtype))(rand)
@@ -314,10 +313,14 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
 
     n_max = substeps.max_substeps
 
-    def needed(x, v, xi, rand):
-        """Sub-steps one path needs at the state ``(x, v)`` under the forcing ``xi`` (``n_max`` if not finite)."""
-        k = jnp.ceil(h * stiffness_rate(path_model(rand), x, v, xi) / substeps.limit)
+    def needed(x, v, e, rand, node):
+        """Sub-steps one path needs at ``(x, v)`` under its forcing node ``e[node]`` (``n_max`` if not finite)."""
+        k = jnp.ceil(h * stiffness_rate(path_model(rand), x, v, e[node]) / substeps.limit)
         return jnp.clip(jnp.where(jnp.isfinite(k), k, n_max), 1, n_max).astype(jnp.int32)
+
+    def sub_forcing(e, ta, tb):
+        """One path's forcing nodes at the start, middle and end of its sub-interval ``[ta, tb]``."""
+        return tuple(_forcing(e, tau) for tau in (ta, 0.5 * (ta + tb), tb))
 
     def sub_step(i, y, e, rand, k):
         """Sub-step ``i`` of each path whose own number of sub-steps ``k`` (``(n,)``) exceeds ``i``.
@@ -328,14 +331,14 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
         active = i < k
         kf = k.astype(y[0].dtype)
         ta, tb = jnp.where(active, i / kf, 0.0), jnp.where(active, (i + 1) / kf, 0.0)
-        sub_e = tuple(_forcing(e, tau[:, None]) for tau in (ta, 0.5 * (ta + tb), tb))
+        sub_e = jax.vmap(sub_forcing)(e, ta, tb)
         new = plain_step(*y, sub_e, rand, jnp.where(active, h / kf, 0.0))
         return tuple(jnp.where(active, a, b) for a, b in zip(new, y, strict=True))
 
     def step(x, v, e, rand):
         start = (x, v)
         finite = jnp.isfinite(x) & jnp.isfinite(v)
-        k_start = jax.vmap(needed)(x, v, e[0], rand)
+        k_start = jax.vmap(functools.partial(needed, node=0))(x, v, e, rand)
 
         def body(i, carry):
             # iteration 0: every path's full step (its trial); then the paths that need it redo the
@@ -343,9 +346,13 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
             trial, y, k = carry
             first = i == 0
             new = sub_step(jnp.where(first, 0, i - 1), y, e, rand, jnp.where(first, 1, k))
-            # a path needs sub-steps if its start or the end of its trial step is stiff (or blew up)
-            k_trial = jnp.where(finite, jnp.maximum(k_start, jax.vmap(needed)(*new, e[2], rand)), 1)
-            return jax.lax.cond(first, lambda: (new, start, k_trial), lambda: (trial, new, k))
+
+            def after_trial():
+                # a path needs sub-steps if its start or the end of its trial step is stiff (or blew up)
+                k_end = jax.vmap(functools.partial(needed, node=2))(*new, e, rand)
+                return new, start, jnp.where(finite, jnp.maximum(k_start, k_end), 1)
+
+            return jax.lax.cond(first, after_trial, lambda: (trial, new, k))
 
         def active(i, carry):
             k_max = jnp.max(carry[2])
