@@ -472,8 +472,8 @@ def _report(res: GridResult, settings: PathIntegration) -> None:
     if res.stationary and not np.all(np.abs(virial) <= VIRIAL_TOL):
         problems.append(
             f"the stationary balance E[v^2] + E[(x - b) a] = 0 is off by {float(virial[0]):+.1%} of E[v^2] "
-            f"(> {VIRIAL_TOL:.0%}): the grid does not resolve the density (at small r, the layer of outgoing "
-            "velocities near the barrier): refine n_x/n_v, or use Monte Carlo"
+            f"(> {VIRIAL_TOL:.0%}): the grid does not resolve the density (at small r with cubic weights, "
+            "near the barrier): refine n_x/n_v, or take order=2 (linear weights: balanced, but more diffusive)"
         )
     if problems:
         warnings.warn("path integration: " + "; ".join(problems), PathIntegrationWarning, stacklevel=3)
