@@ -145,7 +145,8 @@ def locate_crossing(x0, v0, x1, v1, H, n_iter):
         lo, hi = jnp.where(pos, s, lo), jnp.where(pos, hi, s)
         d = dp(s)
         sn = s - ps / jnp.where(d == 0, 1.0, d)
-        s = jnp.where((sn > lo) & (sn < hi), sn, 0.5 * (lo + hi))
+        # a converged s (its step rounds to zero) stays, but not s = 0: a step from the barrier seeks the next root
+        s = jnp.where(((sn > lo) & (sn < hi)) | ((sn == s) & (s > 0)), sn, 0.5 * (lo + hi))
     d = dp(s)
     s = s - p(s) / jnp.where(d == 0, 1.0, d)  # plain Newton step: derivative by the implicit function theorem
     return jnp.clip(s, 0.0, 1.0)

@@ -117,9 +117,9 @@ def matrix_x64():
 def test_float32_agrees_with_float64(matrix, matrix_x64):
     """Same points and excitation in both precisions: typical paths agree closely; one-path divergences do not.
 
-    Measured with the default cutoff ``2 / dt`` (40 rad/s here): at t = 1 pathwise medians 1.7e-6..8.6e-6,
-    90 % quantiles <= 2.0e-4; over t = 1, 10, 20 medians <= 1.3e-4; relative differences of E[x^2], E[v^2]
-    at t = 20 <= 1.9e-2. Differences grow with the number of impacts: float32 roundoff moves a near-grazing
+    Measured with the default cutoff ``2 / dt`` (40 rad/s here): at t = 1 pathwise medians 1.5e-6..8.5e-6,
+    90 % quantiles <= 1.1e-4; over t = 1, 10, 20 medians <= 1.2e-4; relative differences of E[x^2], E[v^2]
+    at t = 20 <= 1.6e-2. Differences grow with the number of impacts: float32 roundoff moves a near-grazing
     impact or a sticking decision, and that one path then differs by O(1) (max 0.72 at r = 0.98, t = 20),
     which with 64 points moves a second moment by ~1 %. (With the cutoff 8 pi the same numbers were 9e-7..3e-5,
     7.2e-4 and 4.6e-3: a wider band means more, sharper impacts.)
