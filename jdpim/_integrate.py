@@ -19,8 +19,12 @@ step ends beyond the barrier (``x_{n+1} < b``) the impact is located and resolve
    the end of its full step, exceeds ``limit / h`` redoes that step as
    ``k = min(max_substeps, ceil(h rho / limit))`` equal sub-steps of its own (see :class:`Substeps`).
 
-Steps without any crossing in the batch skip the impact work (``lax.cond`` at batch level). The
-``"mirror"`` method is the first-order "flip after the step" rule, kept for comparison.
+Only the crossing paths do the impact work, in rounds: each gathers up to ``ceil(n / 64)`` paths that still
+end beyond the barrier, resolves one impact of each and scatters them back. The rounds run in loops of
+static trip count whose iterations are skipped (``lax.cond``) once no path is pending, so the resolution
+(and its sticking logic) is traced once whatever ``max_impacts``, and a step without any crossing in the
+batch skips all of it. The ``"mirror"`` method is the first-order "flip after the step" rule, kept for
+comparison.
 """
 
 from __future__ import annotations
@@ -243,9 +247,9 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
     (or one ``(n, 3, m)`` array).
 
     ``path_model(rand)`` builds one path's model from its random-parameter vector. Impacts are resolved
-    on the crossing paths only: up to ``n / 16`` of them are gathered, resolved and scattered back;
-    a step with more crossings resolves the whole batch. With ``substeps`` (and a model that may be
-    stiff) each path that needs it takes the step as sub-steps of its own (see :class:`Substeps`).
+    on the crossing paths only, in rounds of up to ``ceil(n / 64)`` of them gathered, resolved and
+    scattered back. With ``substeps`` (and a model that may be stiff) each path that needs it takes the
+    step as sub-steps of its own (see :class:`Substeps`).
     """
     shared = path_model(None)
     sticking = shared.has_barrier and rule.method == "locate" and rule.stick_velocity > 0
@@ -270,26 +274,45 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
             return jax.vmap(functools.partial(fn, h=h))
         return lambda *args: jax.vmap(lambda *a: fn(*a[:-1], h=a[-1]))(*args, h)
 
-    def resolve_crossing(state, e, rand, barrier, h):
+    def resolve_crossings(state, e, rand, barrier, h):
+        """Every located impact of the step, in rounds: each gathers up to ``cap`` paths that still end beyond the
+        barrier after fewer than ``max_impacts`` resolutions, resolves one impact of each and scatters them back.
+
+        ``max_impacts * ceil(n / cap)`` rounds suffice for any step: a round takes the first ``cap`` pending
+        paths, so once the paths before the k-th block of ``cap`` pending ones are done (by round
+        ``max_impacts * (k - 1)``), that block is gathered in every round. ``2**depth`` rounds run as a binary
+        tree of ``fori_loop`` of two iterations (static trip counts, so reverse-mode AD works) whose subtrees
+        are skipped once no path is pending: the resolution is traced once, and a step whose crossings fit in
+        one round passes ``depth`` skipped subtrees.
+        """
         n = barrier.shape[0]
-        cap = max(1, -(-n // 16))
-        hit = state[2][0] < barrier
+        cap = max(1, -(-n // 64))
+        depth = (rule.max_impacts * -(-n // cap) - 1).bit_length()
 
-        def all_paths(state):
-            return per_path(resolve, h)(*state, e, rand)
+        def pending(state, count):
+            return (state[2][0] < barrier) & (count < rule.max_impacts)
 
-        def compacted(state):
-            idx = jnp.nonzero(hit, size=cap, fill_value=n)[0]
+        def one_round(carry):
+            state, count, _ = carry
+            idx = jnp.nonzero(pending(state, count), size=cap, fill_value=n)[0]
             sub_state, sub_e, sub_rand = _gather(idx, (state, e, rand))
             sub_h = h if jnp.ndim(h) == 0 else _gather(idx, h)
-            return _scatter(idx, state, per_path(resolve, sub_h)(*sub_state, sub_e, sub_rand))
+            state = _scatter(idx, state, per_path(resolve, sub_h)(*sub_state, sub_e, sub_rand))
+            count = count.at[idx].add(1, mode="drop")
+            return state, count, jnp.any(pending(state, count))
 
-        if cap >= n:
-            return all_paths(state)
-        count = jnp.sum(hit)
-        return jax.lax.cond(
-            count == 0, lambda s: s, lambda s: jax.lax.cond(count <= cap, compacted, all_paths, s), state
-        )
+        def rounds(carry, depth):
+            """``carry`` if no path is pending, else up to ``2**depth`` rounds: two subtrees of ``depth - 1``."""
+
+            def run(carry):
+                if depth == 0:
+                    return one_round(carry)
+                return jax.lax.fori_loop(0, 2, lambda _, c: rounds(c, depth - 1), carry)
+
+            return jax.lax.cond(carry[2], run, lambda c: c, carry)
+
+        count = jnp.zeros(n, jnp.int32)
+        return rounds((state, count, jnp.any(pending(state, count))), depth)[0]
 
     def plain_step(x, v, e, rand, h):
         """One step of every path; ``h`` is the step length, shared (scalar) or per path ``(n,)``."""
@@ -304,9 +327,7 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
         barrier = jax.vmap(lambda r: jnp.asarray(path_model(r).barrier, x.dtype))(rand)
         if rule.method == "locate":
             state = ((x, v), tau0, (x1, v1))
-            for _ in range(rule.max_impacts):
-                state = resolve_crossing(state, e, rand, barrier, h)
-            x1, v1 = state[2]
+            x1, v1 = resolve_crossings(state, e, rand, barrier, h)[2]
         return jax.vmap(mirror)(x1, v1, rand)
 
     if substeps is None or substeps.max_substeps == 1 or not shared.may_be_stiff:
