@@ -141,19 +141,42 @@ def locate_crossing(x0, v0, x1, v1, H, n_iter):
         s2 = s * s
         return (6 * s2 - 6 * s) * (a0 - a1) + (3 * s2 - 4 * s + 1) * b0 + (3 * s2 - 2 * s) * b1
 
+    # A step that starts on the barrier (after an impact or a departure) must step past the root p(0) = 0:
+    # it seeks the root of the deflated quadratic q(s) = p(s) / s (q(0) = b0 >= 0 > q(1) = a1), from its
+    # closed-form root; the iterations then only polish it.
+    on_barrier = a0 == 0
+    c0, c1, c2 = b0, 3 * a1 - 2 * b0 - b1, b0 - 2 * a1 + b1
+
+    def f(s):
+        return jnp.where(on_barrier, c0 + s * (c1 + s * c2), p(s))
+
+    def df(s):
+        return jnp.where(on_barrier, c1 + 2 * s * c2, dp(s))
+
     lo, hi = jnp.zeros_like(x0), jnp.ones_like(x0)
-    s = jnp.clip(a0 / (a0 - a1), 0.0, 1.0)
+    guess = jnp.clip(a0 / (a0 - a1), 0.0, 1.0)
+    s = jnp.where(on_barrier, jax.lax.stop_gradient(_deflated_root(c0, c1, c2, a1)), guess)
     for _ in range(n_iter):
-        ps = p(s)
-        pos = ps >= 0  # p(0) = 0 (a step that starts on the barrier) keeps the bracket open
+        ps = f(s)
+        pos = ps >= 0
         lo, hi = jnp.where(pos, s, lo), jnp.where(pos, hi, s)
-        d = dp(s)
+        d = df(s)
         sn = s - ps / jnp.where(d == 0, 1.0, d)
         # a converged s (its step rounds to zero) stays, but not s = 0: a step from the barrier seeks the next root
         s = jnp.where(((sn > lo) & (sn < hi)) | ((sn == s) & (s > 0)), sn, 0.5 * (lo + hi))
     d = dp(s)
     s = s - p(s) / jnp.where(d == 0, 1.0, d)  # plain Newton step: derivative by the implicit function theorem
     return jnp.clip(s, 0.0, 1.0)
+
+
+def _deflated_root(c0, c1, c2, q1):
+    """Root in ``(0, 1)`` of ``q(s) = c0 + c1 s + c2 s^2``, where ``q(0) = c0 >= 0 > q(1) = q1`` (stable formula)."""
+    disc = c1 * c1 - 4.0 * c2 * c0
+    t = -0.5 * (c1 + jnp.where(c1 < 0, -1.0, 1.0) * jnp.sqrt(jnp.maximum(disc, 0.0)))
+    roots = jnp.stack([t / jnp.where(c2 == 0, 1.0, c2), c0 / jnp.where(t == 0, 1.0, t)])
+    ok = jnp.stack([c2 != 0, t != 0]) & (roots > 0) & (roots < 1)
+    fallback = c0 / jnp.where(c0 - q1 == 0, 1.0, c0 - q1)  # the secant of q over [0, 1]
+    return jnp.where(jnp.any(ok, axis=0), jnp.min(jnp.where(ok, roots, 2.0), axis=0), fallback)
 
 
 def _bracketed_newton(q, dq, lo, hi, n_iter):

@@ -95,11 +95,12 @@ def test_substeps_are_per_path():
 
 
 def test_blow_up_is_counted_and_warned():
-    scene = matrix_scene(**STIFF, v0=4.0, x0=0.5)  # no sub-stepping (the default): same compiled run as the matrix
+    # no sub-stepping (the default): same compiled run as the matrix; from v0 = 4 every path blows up
+    scene = matrix_scene(**STIFF, v0=3.5, x0=0.5)
     with pytest.warns(jdpim.NonFiniteWarning, match="non-finite"):
         res = jdpim.dpim(scene, n_points=N_POINTS)
     counts, lost = np.asarray(res.n_nonfinite()), np.asarray(res.lost_mass())
-    assert np.all(counts > 0)  # measured: 55 of 64 paths blow up (lost mass 0.858; 60 and 0.944 with cutoff 8 pi)
+    assert np.all(counts > 0)  # measured: 40 of 64 paths blow up (lost mass 0.634; 0.618 with cutoff 8 pi)
     bad = ~np.all(np.isfinite(np.asarray(res.states)), axis=-1)
     np.testing.assert_allclose(lost, np.asarray(res.weights) @ bad, rtol=1e-6)
     # the densities leave the lost mass out instead of hiding it
