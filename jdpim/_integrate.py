@@ -340,14 +340,14 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
     def plain_step(x, v, e, rand, h):
         """One step of every path; ``h`` is the step length, shared (scalar) or per path ``(n,)``."""
         tau0 = jnp.zeros_like(x)
-        if sticking:
+        if shared.has_barrier:
             barrier = jax.vmap(lambda r: jnp.asarray(path_model(r).barrier, x.dtype))(rand)
+        if sticking:
             resting = (x == barrier) & (v == 0)
             tau0 = jax.lax.cond(jnp.any(resting), lambda: jax.vmap(start_fraction)(x, v, e, rand), lambda: tau0)
         x1, v1 = per_path(free, h)(x, v, e, rand, tau0)
         if not shared.has_barrier:
             return x1, v1
-        barrier = jax.vmap(lambda r: jnp.asarray(path_model(r).barrier, x.dtype))(rand)
         if rule.method == "locate":
             state = ((x, v), tau0, (x1, v1))
             x1, v1 = resolve_crossings(state, e, rand, barrier, h)[2]
