@@ -3,6 +3,7 @@ Integral Method (DPIM), with Monte Carlo simulation and exact solutions beside i
 
 import importlib.metadata as _metadata
 
+from ._cpu import use_cpu_cores as use_cpu_cores
 from ._density import RULES as RULES
 from ._density import bandwidth as bandwidth
 from ._density import histogram as histogram

@@ -9,6 +9,7 @@ streamed in blocks of chunks from a host loop, and the path axis is sharded over
 from __future__ import annotations
 
 import functools
+import os
 import sys
 import time
 import warnings
@@ -27,6 +28,7 @@ from ._scene import Scene
 
 MEMORY_BUDGET = 512 * 2**20  # bytes of excitation work per chunk where the device does not report its memory
 DEVICE_MEMORY_SHARE = 0.5  # share of an accelerator's memory one chunk's excitation work may take
+CPU_CHUNK_PATHS = 512  # most paths per chunk on a CPU: the cost per path-step rises 1.5-2.5x above ~550 (docs/speed.md)
 
 
 class NonFiniteWarning(RuntimeWarning):
@@ -39,21 +41,37 @@ def _largest_chunk(scene: Scene) -> int:
 
 
 def memory_budget() -> int:
-    """Bytes of excitation work per chunk: a share of the first local device's memory if it reports it."""
+    """Bytes of excitation work per chunk: a share of the first local device's memory if it reports it.
+
+    Otherwise (a CPU) ``MEMORY_BUDGET``, or less where the host's memory shared by the local devices, which
+    run their chunks at once, calls for it: at most a quarter of it in all.
+    """
     stats = jax.local_devices()[0].memory_stats() or {}
-    return int(DEVICE_MEMORY_SHARE * stats["bytes_limit"]) if "bytes_limit" in stats else MEMORY_BUDGET
+    if "bytes_limit" in stats:
+        return int(DEVICE_MEMORY_SHARE * stats["bytes_limit"])
+    return min(MEMORY_BUDGET, _host_memory() // (4 * jax.local_device_count()))
+
+
+def _host_memory() -> int:
+    """Bytes of physical memory of this host (``MEMORY_BUDGET * 8`` where the OS does not say)."""
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (AttributeError, ValueError, OSError):
+        return 8 * MEMORY_BUDGET
 
 
 def default_chunk_size(scene: Scene, n_paths: int) -> int:
     """Paths per chunk so that one chunk's excitation work stays within :func:`memory_budget`.
 
-    On a CPU that is 512 MiB (about 800 paths of the reference scene); on a GPU half its memory, as far
-    as 32-bit indexing allows: a GPU's time per step barely grows with the paths in a chunk, so large
-    chunks are what make it fast (``docs/speed.md``).
+    On a CPU that is 512 MiB (about 800 paths of the reference scene), and at most ``CPU_CHUNK_PATHS``
+    paths, above which XLA's CPU code takes longer per path; on a GPU half its memory, as far as 32-bit
+    indexing allows: a GPU's time per step barely grows with the paths in a chunk, so large chunks are
+    what make it fast (``docs/speed.md``).
     """
     grid = scene.spectral_grid()
     bytes_per_path = 4 * scene.float_dtype.itemsize * scene.n_sources * grid.n_fft
-    largest = max(1, min(n_paths, memory_budget() // bytes_per_path, _largest_chunk(scene)))
+    cap = CPU_CHUNK_PATHS if jax.local_devices()[0].platform == "cpu" else n_paths
+    largest = max(1, min(n_paths, cap, memory_budget() // bytes_per_path, _largest_chunk(scene)))
     n_chunks = -(-n_paths // largest)
     return -(-n_paths // n_chunks)  # equal chunks: the least padding
 
@@ -150,6 +168,15 @@ def _devices(devices):
     return devices
 
 
+def balanced_chunk(n_paths: int, chunk_size: int, n_devices: int) -> int:
+    """The chunk size for ``n_paths`` over ``n_devices``: equal chunks per device, none above ``chunk_size``.
+
+    Each device then holds as little padding as whole chunks allow (less than one path per chunk).
+    """
+    share = -(-n_paths // n_devices)
+    return -(-share // -(-share // chunk_size))
+
+
 @functools.lru_cache(maxsize=32)
 def _sharded_simulate(kind: str, chunk_size: int, devices: tuple, accumulate=None):
     """``simulate`` with the path axis split over ``devices`` (one shard of whole chunks per device)."""
@@ -196,9 +223,10 @@ def run_paths(
 
     Args:
         scene, rows, kind, chunk_size: as for :func:`simulate`.
-        block_size: paths per device call (``None``: 16 chunks per device). Larger runs are processed block by
-            block in a host loop, each block's saved states moved to host memory, so that memory is
-            bounded by one block whatever ``N``; the result is then one array.
+        block_size: most paths per call over all devices (``None``: 16 chunks per device); the blocks are made
+            equal, of whole chunks on every device, so that little padding is computed. Larger runs are
+            processed block by block in a host loop, each block's saved states moved to host memory, so that
+            memory is bounded by one block whatever ``N``; the result is then one array.
         devices: devices to shard the path axis over (``None``: every local device). Each path is a
             pure function of its row, so the states do not depend on the devices or the blocks.
         progress: report progress on stderr (``None``: only when there is more than one block).
@@ -211,10 +239,11 @@ def run_paths(
         return simulate(scene, rows, kind=kind, chunk_size=chunk_size, accumulate=accumulate)
     devices = _devices(devices)
     n = rows.shape[0]
-    chunk_size = min(chunk_size, -(-n // len(devices)))  # no device left with only padding
+    chunk_size = balanced_chunk(n, chunk_size, len(devices))
     unit = chunk_size * len(devices)
     block = 16 * unit if block_size is None else check_int("block_size", block_size, low=1)
-    block = -(-min(block, n) // unit) * unit  # whole chunks on every device
+    per_block = -(-n // -(-n // block))  # the paths split equally over the fewest blocks of at most `block`
+    block = -(-per_block // unit) * unit  # whole chunks on every device
     n_blocks = -(-n // block)
     if len(devices) == 1:
         run = functools.partial(simulate, kind=kind, chunk_size=chunk_size, accumulate=accumulate)
@@ -323,7 +352,8 @@ def dpim(
         scene: the scene.
         n_points: number of representative points (>= 2), if ``points`` is not given.
         points: a precomputed :class:`PointSet` matching ``scene.input_distributions()``.
-        chunk_size: paths per chunk, or ``None`` for a memory-based default.
+        chunk_size: most paths per chunk (each device's paths are split into equal chunks no larger), or
+            ``None`` for a memory-based default.
         devices: devices to split the points over (``None``: every local device); the states are the
             same whatever the devices.
         progress: progress line on stderr (``None``: only for runs of more than one block of paths).
@@ -360,7 +390,8 @@ def monte_carlo(
         scene: the scene.
         n_samples: number of sample paths (>= 2).
         seed: PRNG seed; the same seed gives the same result whatever ``chunk_size``.
-        chunk_size: paths per chunk, or ``None`` for a memory-based default.
+        chunk_size: most paths per chunk (each device's paths are split into equal chunks no larger), or
+            ``None`` for a memory-based default.
         devices: devices to split the samples over (``None``: every local device); the same seed gives
             the same states whatever the devices.
         progress: progress line on stderr (``None``: only for runs of more than one block of paths).

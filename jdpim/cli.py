@@ -72,6 +72,12 @@ def _common(p) -> None:
     p.add_argument("--out", type=pathlib.Path, default=pathlib.Path("jdpim_out"), help="output folder")
     p.add_argument("--quiet", action="store_true", help="no progress lines (results and file names only)")
     p.add_argument("--traceback", action="store_true", help="show Python tracebacks of errors (for bug reports)")
+    p.add_argument(
+        "--cpu-devices",
+        type=_count(1),
+        default=None,
+        help="split the CPU into this many JAX devices, run side by side (default: one per usable core)",
+    )
 
 
 def _run_parser(sub) -> None:
@@ -119,6 +125,8 @@ def _paper_parser(sub) -> None:
 
 def run(args) -> dict:
     """The main job. Returns the summary it also writes to ``<out>/summary.json``."""
+    import jax
+
     import jdpim
     from jdpim import metrics
     from jdpim.bench import timed
@@ -136,9 +144,10 @@ def run(args) -> dict:
         f"dt={args.dt} s, w_u={scene.spectral_grid().cutoff:.3g} rad/s, K={scene.spectral_grid().n_terms}"
     )
     log(f"DPIM: {args.points} points, compile + warm-up + {args.repeats} timed runs ...")
-    dp, t_dp = timed("dpim", scene, args.points, repeats=args.repeats)
+    devices = jax.local_devices()
+    dp, t_dp = timed("dpim", scene, args.points, repeats=args.repeats, devices=devices)
     log(f"MCS: {args.samples} samples, compile + one timed run ...")
-    mc, t_mc = timed("monte_carlo", scene, args.samples, repeats=1, warmup=False)
+    mc, t_mc = timed("monte_carlo", scene, args.samples, repeats=1, warmup=False, devices=devices)
     rows = [t_dp.row(), t_mc.row()]
     table = _timing_table(rows, scene.n_steps)
     print(table, flush=True)
@@ -202,13 +211,13 @@ def _reference(scene, log):
 
 def _timing_table(rows, n_steps) -> str:
     lines = [
-        "| method | paths | steps | compile (s) | run, median (s) | path-steps/s |",
-        "|---|---:|---:|---:|---:|---:|",
+        "| method | paths | steps | devices | compile (s) | run, median (s) | path-steps/s |",
+        "|---|---:|---:|---:|---:|---:|---:|",
     ]
     for r in rows:
         lines.append(
-            f"| {r['method']} | {r['n_paths']} | {n_steps} | {r['compile_s']:.2f} | {r['median_s']:.3f} "
-            f"| {r['path_steps_per_s']:.3g} |"
+            f"| {r['method']} | {r['n_paths']} | {n_steps} | {r['devices']} | {r['compile_s']:.2f} "
+            f"| {r['median_s']:.3f} | {r['path_steps_per_s']:.3g} |"
         )
     return "\n".join(lines)
 
@@ -292,12 +301,18 @@ def parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
-    """Entry point: ``jdpim paper|run|bench ...``; returns the exit status (2 for user errors)."""
+    """Entry point: ``jdpim paper|run|bench ...``; returns the exit status (2 for user errors).
+
+    Run as a program (``argv=None``) it splits the CPU into one JAX device per usable core (``--cpu-devices``
+    to choose); called from Python with ``argv`` it leaves JAX's devices as they are unless ``--cpu-devices``
+    is given.
+    """
+    from_program = argv is None
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv and argv[0] == "bench":
         from jdpim.bench.__main__ import main as bench_main
 
-        return bench_main(argv[1:])
+        return bench_main(argv[1:], from_program=from_program)
     p = parser()
     if not argv or argv[0] not in ("paper", "run", "-h", "--help", "--version"):
         argv = ["run", *argv]  # `python -m jdpim` alone is the main job, as before
@@ -305,9 +320,14 @@ def main(argv=None) -> int:
         args = p.parse_args(argv)
     except SystemExit as exit_:  # argparse: --help (0) or a bad value (2, one line already printed)
         return int(exit_.code or 0)
+    from jdpim._cpu import start_devices
     from jdpim._scenefile import SceneFileError
 
     try:
+        if from_program or args.cpu_devices is not None:
+            devices = start_devices(args.cpu_devices)
+            if not args.quiet:
+                print(f"jdpim {args.command}: running on {devices}", flush=True)
         if args.command == "paper":
             _paper(args)
         elif args.scene_file is not None:

@@ -7,9 +7,10 @@ import textwrap
 
 import jax
 import numpy as np
+import pytest
 
 import jdpim
-from jdpim._pipelines import monte_carlo_inputs, run_paths, simulate
+from jdpim._pipelines import balanced_chunk, monte_carlo_inputs, run_paths, simulate
 
 SCENE = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=2.0, dt=0.01, save_at=(1.0, 2.0))
 
@@ -48,3 +49,56 @@ def test_two_host_devices_shard_the_paths_with_identical_results():
     out = subprocess.run([sys.executable, "-c", _SHARDED], env=env, capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr[-3000:]
     assert out.stdout.strip().endswith("ok")
+
+
+_CPU_CORES = textwrap.dedent(
+    """
+    import jax, pytest, jdpim
+    from jdpim._cpu import start_devices
+    with pytest.raises(ValueError, match="n must be"):
+        jdpim.use_cpu_cores(0)
+    assert jdpim.use_cpu_cores(3) == 3
+    assert jax.device_count() == 3  # the first computation starts JAX with three CPU devices
+    assert jdpim.use_cpu_cores(3) == 3  # asking again for what runs is fine
+    with pytest.raises(RuntimeError, match="already runs on 3 CPU device"):
+        jdpim.use_cpu_cores(2)
+    assert start_devices(None) == "3 CPU device(s)"  # the command line leaves a started JAX alone
+    with pytest.raises(ValueError, match="already runs on 3"):
+        start_devices(2)
+    print("ok")
+    """
+)
+
+
+def test_use_cpu_cores_splits_the_cpu_before_jax_starts_and_says_when_too_late():
+    env = {k: v for k, v in os.environ.items() if k not in ("XLA_FLAGS", "JAX_NUM_CPU_DEVICES")}
+    out = subprocess.run(
+        [sys.executable, "-c", _CPU_CORES],
+        env=dict(env, JAX_PLATFORMS="cpu"),
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert out.stdout.strip().endswith("ok")
+
+
+@pytest.mark.parametrize(
+    ("n", "chunk", "devices"), [(10_000, 770, 2), (10_000, 770, 1), (48, 20, 1), (7, 3, 4), (5, 8, 2)]
+)
+def test_balanced_chunks_are_no_larger_and_pad_less_than_a_path_per_chunk(n, chunk, devices):
+    c = balanced_chunk(n, chunk, devices)
+    share = -(-n // devices)
+    n_chunks = -(-share // c)
+    assert 1 <= c <= chunk
+    assert n_chunks == -(-share // chunk)  # as few chunks as the limit allows
+    assert 0 <= n_chunks * c - share < n_chunks
+
+
+def test_blocks_are_equal_so_that_a_run_just_over_one_block_pads_little(capsys):
+    """16 chunks of 8 make a default block of 128 paths; 136 paths run as two blocks of 72 (not 128 + 128)."""
+    rows, _, chunk = monte_carlo_inputs(SCENE, 136, seed=4, chunk_size=8)
+    whole = np.asarray(simulate(SCENE, rows, kind="monte_carlo", chunk_size=chunk))
+    streamed = run_paths(SCENE, rows, kind="monte_carlo", chunk_size=chunk, progress=True)
+    np.testing.assert_array_equal(np.asarray(streamed), whole)
+    assert "72/136 paths" in capsys.readouterr().err

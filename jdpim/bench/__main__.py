@@ -15,8 +15,15 @@ def _positive_int(text: str) -> int:
     return value
 
 
-def main(argv=None) -> int:
+def main(argv=None, *, from_program=None) -> int:
+    """Run one benchmark; as a program (``argv=None``) on one CPU device per usable core (``--cpu-devices``)."""
     parser = argparse.ArgumentParser(prog="python -m jdpim.bench", description=__doc__)
+    parser.add_argument(
+        "--cpu-devices",
+        type=_positive_int,
+        default=None,
+        help="split the CPU into this many JAX devices (default: one per usable core when run as a program)",
+    )
     sub = parser.add_subparsers(dest="command", required=True)
     acc = sub.add_parser("accuracy", help="error against exact/reference PDFs versus warm wall time")
     acc.add_argument("--quick", action="store_true", help="small sweep that finishes in a few minutes on 2 cores")
@@ -43,6 +50,10 @@ def main(argv=None) -> int:
     sens.add_argument("--quick", action="store_true", help="short horizons and few paths: a few minutes on 2 cores")
     sens.add_argument("--out", type=pathlib.Path, default=pathlib.Path("jdpim_out/bench"))
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
+    if (argv is None if from_program is None else from_program) or args.cpu_devices is not None:
+        from .._cpu import start_devices
+
+        print(f"jdpim bench: running on {start_devices(args.cpu_devices)}", flush=True)
     if args.command == "accuracy":
         from .accuracy import QUICK, Sweep, sweep, write
 

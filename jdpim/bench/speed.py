@@ -2,6 +2,8 @@
 
 Reference scene: alpha = gamma = 0.03, r = 0.98, D = 0.03, t_end = 200 s, dt = 0.01 s (2e4 steps).
 Protocol (``timing.timed``): AOT compile (timed apart), one warm-up run, ``repeats`` warm runs, median.
+Each configuration runs on one device, and again on every local device when there are several (as
+``python -m jdpim.bench`` sets up on a multi-core CPU: one device per core).
 The split times the two stages of one chunk on their own (excitation synthesis; the rest of the
 chunk, mostly integration), times the number of chunks, and the densities (``Result.pdf`` of x and v
 on 481 / 961 points at t_end).
@@ -118,23 +120,26 @@ def run_speed(out: pathlib.Path, *, quick: bool = False, log=print) -> list[str]
     dtypes = ("float32",) if quick else ("float32", "float64")
     mcs_sizes = (10_000,) if quick else (10_000, 100_000)
     rows = []
+    # one device (the protocol's rows, with the split), then every local device (what dpim and monte_carlo use)
+    device_sets = [None] + ([jax.local_devices()] if jax.local_device_count() > 1 else [])
     for dtype in dtypes:
         if dtype == "float64":
             jax.config.update("jax_enable_x64", True)
         scene = paper_scene(T_END, DT, dtype=dtype)
         for method, n in [("dpim", 1000)] + [("monte_carlo", m) for m in mcs_sizes]:
-            log(f"[speed] {dtype} {method} n={n} ...")
-            res, tm = timed(method, scene, n, repeats=repeats if n <= 10_000 else 1)
-            row = {"dtype": dtype, **tm.row()}
-            if n <= 10_000:  # the split of one chunk of the same size
-                inputs = dpim_inputs(scene, n) if method == "dpim" else monte_carlo_inputs(scene, n)
-                chunk = inputs[0][: inputs[2]]
-                row.update(split(scene, chunk, method, repeats, -(-n // inputs[2])))
-                row["densities_s"] = round(density_time(res, repeats), 4)
-            row["peak_rss_mib"] = round(_peak_mib())
-            row["n_nonfinite"] = int(np.max(np.asarray(res.n_nonfinite())))
-            rows.append(row)
-            log(f"[speed]   {row}")
+            for devices in device_sets:
+                log(f"[speed] {dtype} {method} n={n} on {1 if devices is None else len(devices)} device(s) ...")
+                res, tm = timed(method, scene, n, repeats=repeats if n <= 10_000 else 1, devices=devices)
+                row = {"dtype": dtype, **tm.row()}
+                if n <= 10_000 and devices is None:  # the split of one chunk of the same size
+                    inputs = dpim_inputs(scene, n) if method == "dpim" else monte_carlo_inputs(scene, n)
+                    chunk = inputs[0][: inputs[2]]
+                    row.update(split(scene, chunk, method, repeats, -(-n // inputs[2])))
+                    row["densities_s"] = round(density_time(res, repeats), 4)
+                row["peak_rss_mib"] = round(_peak_mib())
+                row["n_nonfinite"] = int(np.max(np.asarray(res.n_nonfinite())))
+                rows.append(row)
+                log(f"[speed]   {row}")
     n_np = 1000
     log(f"[speed] numpy baseline n={n_np} ...")
     np_runs = [numpy_mcs(n_np, seed=s)[1] for s in range(1 if quick else 2)]
@@ -151,7 +156,8 @@ def run_speed(out: pathlib.Path, *, quick: bool = False, log=print) -> list[str]
         "rows": rows,
         "machine": {
             "platform": platform.platform(),
-            "cpu_count": jax.local_device_count(),
+            "cpu_cores": os.cpu_count(),
+            "devices": jax.local_device_count(),
             "backend": jax.default_backend(),
             "jax": jax.__version__,
         },
@@ -165,6 +171,7 @@ def run_speed(out: pathlib.Path, *, quick: bool = False, log=print) -> list[str]
         "dtype",
         "method",
         "n_paths",
+        "devices",
         "compile_s",
         "median_s",
         "excitation_s",

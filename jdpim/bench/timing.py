@@ -7,8 +7,9 @@ import statistics
 import time
 
 import jax
+import jax.numpy as jnp
 
-from .._pipelines import _finish, dpim_inputs, monte_carlo_inputs, simulate
+from .._pipelines import _finish, _sharded_simulate, balanced_chunk, dpim_inputs, monte_carlo_inputs, simulate
 from .._result import Result
 from .._scene import Scene
 
@@ -22,6 +23,7 @@ class Timing:
     n_steps: int
     compile_s: float
     runs_s: tuple[float, ...]
+    devices: int = 1
 
     @property
     def median_s(self) -> float:
@@ -35,6 +37,7 @@ class Timing:
         return {
             "method": self.method,
             "n_paths": self.n_paths,
+            "devices": self.devices,
             "compile_s": round(self.compile_s, 3),
             "median_s": round(self.median_s, 4),
             "repeats": len(self.runs_s),
@@ -52,11 +55,13 @@ def timed(
     warmup: bool = True,
     points=None,
     chunk_size=None,
+    devices=None,
 ) -> tuple[Result, Timing]:
     """Run ``method`` (``"dpim"`` or ``"monte_carlo"``) with ``n`` paths under the timing protocol.
 
-    One device: the run is :func:`jdpim._pipelines.simulate` (unsharded, unstreamed) on the default
-    device, not ``run_paths``; ``jdpim.bench.throughput`` times the sharded path over every device.
+    ``devices=None``: one device, the run is :func:`jdpim._pipelines.simulate` (unsharded, unstreamed) on
+    the default device. Several ``devices``: the path axis is split over them as ``dpim`` and
+    ``monte_carlo`` split it (one call, unstreamed); ``Timing.devices`` records how many.
 
     Point selection (DPIM, cached) and key generation happen before the clock starts; the clock covers
     excitation, integration and the transfer of the saved states.
@@ -70,8 +75,16 @@ def timed(
         rows, weights, chunk = monte_carlo_inputs(scene, n, seed=seed, chunk_size=chunk_size)
     else:
         raise ValueError(f"method must be 'dpim' or 'monte_carlo', got {method!r}")
+    n, n_devices = int(rows.shape[0]), 1 if devices is None else len(devices)
     t0 = time.perf_counter()
-    compiled = simulate.lower(scene, rows, kind=method, chunk_size=chunk).compile()
+    if n_devices == 1:
+        compiled = simulate.lower(scene, rows, kind=method, chunk_size=chunk).compile()
+    else:
+        chunk = balanced_chunk(n, chunk, n_devices)
+        fn, sharding = _sharded_simulate(method, chunk, tuple(devices))
+        pad = (-n) % (chunk * n_devices)
+        rows = jax.device_put(jnp.concatenate([rows, jnp.repeat(rows[:1], pad, axis=0)]) if pad else rows, sharding)
+        compiled = fn.lower(scene, rows).compile()
     compile_s = time.perf_counter() - t0
     if warmup:
         jax.block_until_ready(compiled(scene, rows))
@@ -80,5 +93,5 @@ def timed(
         t0 = time.perf_counter()
         states = jax.block_until_ready(compiled(scene, rows))
         runs.append(time.perf_counter() - t0)
-    result = _finish(scene, states, weights, method)
-    return result, Timing(method, int(rows.shape[0]), scene.n_steps, compile_s, tuple(runs))
+    result = _finish(scene, states[:n], weights, method)
+    return result, Timing(method, n, scene.n_steps, compile_s, tuple(runs), n_devices)
