@@ -28,7 +28,9 @@ from ._scene import Scene
 
 MEMORY_BUDGET = 512 * 2**20  # bytes of excitation work per chunk where the device does not report its memory
 DEVICE_MEMORY_SHARE = 0.5  # share of an accelerator's memory one chunk's excitation work may take
-CPU_CHUNK_PATHS = 512  # most paths per chunk on a CPU: the cost per path-step rises 1.5-2.5x above ~550 (docs/speed.md)
+# most bytes of one per-path number per chunk on a CPU (512 float32 or 256 float64 paths): above about
+# 2.1 KiB the cost per path-step rises 1.2-2.5x (docs/speed.md)
+CPU_CHUNK_BYTES = 2048
 
 
 class NonFiniteWarning(RuntimeWarning):
@@ -63,14 +65,14 @@ def _host_memory() -> int:
 def default_chunk_size(scene: Scene, n_paths: int) -> int:
     """Paths per chunk so that one chunk's excitation work stays within :func:`memory_budget`.
 
-    On a CPU that is 512 MiB (about 800 paths of the reference scene), and at most ``CPU_CHUNK_PATHS``
-    paths, above which XLA's CPU code takes longer per path; on a GPU half its memory, as far as 32-bit
-    indexing allows: a GPU's time per step barely grows with the paths in a chunk, so large chunks are
-    what make it fast (``docs/speed.md``).
+    On a CPU that is 512 MiB (about 800 paths of the reference scene), and at most 512 paths in float32
+    or 256 in float64 (``CPU_CHUNK_BYTES``), above which XLA's CPU code takes longer per path; on a GPU
+    half its memory, as far as 32-bit indexing allows: a GPU's time per step barely grows with the paths
+    in a chunk, so large chunks are what make it fast (``docs/speed.md``).
     """
     grid = scene.spectral_grid()
     bytes_per_path = 4 * scene.float_dtype.itemsize * scene.n_sources * grid.n_fft
-    cap = CPU_CHUNK_PATHS if jax.local_devices()[0].platform == "cpu" else n_paths
+    cap = CPU_CHUNK_BYTES // scene.float_dtype.itemsize if jax.local_devices()[0].platform == "cpu" else n_paths
     largest = max(1, min(n_paths, cap, memory_budget() // bytes_per_path, _largest_chunk(scene)))
     n_chunks = -(-n_paths // largest)
     return -(-n_paths // n_chunks)  # equal chunks: the least padding
