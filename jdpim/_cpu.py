@@ -33,7 +33,7 @@ def use_cpu_cores(n: int | None = None) -> int:
     ``None``. States do not depend on the number of devices beyond rounding (``docs/speed.md``).
 
     Measured on a 2-core CPU (reference scene, float32, warm): DPIM with 1000 points 0.69 s on one device,
-    0.45 s on two; Monte Carlo with 1e4 samples 9.7 s and 5.1 s.
+    0.47 s on two; Monte Carlo with 1e4 samples 7.0 s and 4.7 s.
 
     Args:
         n: number of CPU devices (>= 1), or ``None`` for :func:`usable_cores`.
