@@ -179,6 +179,15 @@ def balanced_chunk(n_paths: int, chunk_size: int, n_devices: int) -> int:
     return -(-share // -(-share // chunk_size))
 
 
+def home_device(devices):
+    """The device that gathers the states of a run over several CPU devices; ``None`` to keep them sharded.
+
+    CPU devices share the host's memory, and computations on states sharded over them run XLA:CPU
+    collectives, which we saw deadlock (``docs/speed.md``); states sharded over accelerators stay sharded.
+    """
+    return devices[0] if len(devices) > 1 and all(d.platform == "cpu" for d in devices) else None
+
+
 @functools.lru_cache(maxsize=32)
 def _sharded_simulate(kind: str, chunk_size: int, devices: tuple, accumulate=None):
     """``simulate`` with the path axis split over ``devices`` (one shard of whole chunks per device)."""
@@ -223,6 +232,9 @@ def run_paths(
 ):
     """Saved states ``(N, S, 2)`` of ``rows``, sharded over ``devices`` and streamed in blocks of paths.
 
+    The states come back sharded over accelerators, and on the first device from several CPU devices
+    (:func:`home_device`).
+
     Args:
         scene, rows, kind, chunk_size: as for :func:`simulate`.
         block_size: most paths per call over all devices (``None``: 16 chunks per device); the blocks are made
@@ -256,16 +268,19 @@ def run_paths(
     bar = _Progress(n, label or kind, n_blocks > 1 if progress is None else bool(progress))
     pad = n_blocks * block - n
     rows = jnp.concatenate([rows, jnp.repeat(rows[:1], pad, axis=0)]) if pad else rows
+    home = home_device(devices)
     if n_blocks == 1:
         out = run(scene, jax.device_put(rows, sharding))
         bar.update(n)
+        if home is not None:
+            out = jax.device_put(out, home)
         return jax.tree_util.tree_map(lambda a: a[:n], out) if pad else out
     parts = []
     for b in range(n_blocks):
         out = run(scene, jax.device_put(rows[b * block : (b + 1) * block], sharding))
         parts.append(jax.tree_util.tree_map(np.asarray, out))
         bar.update(min(n, (b + 1) * block))
-    target = sharding if n % len(devices) == 0 else devices[0]
+    target = home or (sharding if n % len(devices) == 0 else devices[0])
     return jax.tree_util.tree_map(lambda *a: jax.device_put(np.concatenate(a)[:n], target), *parts)
 
 
@@ -361,7 +376,8 @@ def dpim(
         progress: progress line on stderr (``None``: only for runs of more than one block of paths).
 
     Returns:
-        :class:`Result` with ``weights = P_q``; ``states`` is sharded over ``devices``.
+        :class:`Result` with ``weights = P_q``; ``states`` is sharded over ``devices`` (over several CPU
+        devices, gathered on the first one).
 
     Example:
         >>> import jdpim, numpy as np
@@ -399,7 +415,8 @@ def monte_carlo(
         progress: progress line on stderr (``None``: only for runs of more than one block of paths).
 
     Returns:
-        :class:`Result` with equal weights ``1 / n_samples``; ``states`` is sharded over ``devices``.
+        :class:`Result` with equal weights ``1 / n_samples``; ``states`` is sharded over ``devices`` (over
+        several CPU devices, gathered on the first one).
 
     Example:
         >>> import jdpim

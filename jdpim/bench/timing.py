@@ -9,7 +9,15 @@ import time
 import jax
 import jax.numpy as jnp
 
-from .._pipelines import _finish, _sharded_simulate, balanced_chunk, dpim_inputs, monte_carlo_inputs, simulate
+from .._pipelines import (
+    _finish,
+    _sharded_simulate,
+    balanced_chunk,
+    dpim_inputs,
+    home_device,
+    monte_carlo_inputs,
+    simulate,
+)
 from .._result import Result
 from .._scene import Scene
 
@@ -93,5 +101,6 @@ def timed(
         t0 = time.perf_counter()
         states = jax.block_until_ready(compiled(scene, rows))
         runs.append(time.perf_counter() - t0)
-    result = _finish(scene, states[:n], weights, method)
+    home = None if devices is None else home_device(tuple(devices))
+    result = _finish(scene, (states if home is None else jax.device_put(states, home))[:n], weights, method)
     return result, Timing(method, n, scene.n_steps, compile_s, tuple(runs), n_devices)
