@@ -133,12 +133,17 @@ def _simulate_chunk(scene: Scene, kind: str, rows, accumulate=None):
     )
 
 
+def pad_rows(rows, pad: int):
+    """``rows`` with ``pad`` copies of its first row appended (padding paths, dropped from the results)."""
+    return jnp.concatenate([rows, jnp.repeat(rows[:1], pad, axis=0)]) if pad else rows
+
+
 def _simulate(scene: Scene, rows, *, kind: str, chunk_size: int, accumulate=None):
     if kind not in ("dpim", "monte_carlo"):
         raise ValueError(f"kind must be 'dpim' or 'monte_carlo', got {kind!r}")
     n = rows.shape[0]
     pad = (-n) % chunk_size
-    padded = jnp.concatenate([rows, jnp.repeat(rows[:1], pad, axis=0)]) if pad else rows
+    padded = pad_rows(rows, pad)
     chunks = padded.reshape(-1, chunk_size, *rows.shape[1:])
     out = jax.lax.map(functools.partial(_simulate_chunk, scene, kind, accumulate=accumulate), chunks)
     return jax.tree_util.tree_map(lambda a: a.reshape(-1, *a.shape[2:])[:n], out)
@@ -267,7 +272,7 @@ def run_paths(
         run = fn
     bar = _Progress(n, label or kind, n_blocks > 1 if progress is None else bool(progress))
     pad = n_blocks * block - n
-    rows = jnp.concatenate([rows, jnp.repeat(rows[:1], pad, axis=0)]) if pad else rows
+    rows = pad_rows(rows, pad)
     home = home_device(devices)
     if n_blocks == 1:
         out = run(scene, jax.device_put(rows, sharding))

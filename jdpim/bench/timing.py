@@ -7,7 +7,6 @@ import statistics
 import time
 
 import jax
-import jax.numpy as jnp
 
 from .._pipelines import (
     _finish,
@@ -16,6 +15,7 @@ from .._pipelines import (
     dpim_inputs,
     home_device,
     monte_carlo_inputs,
+    pad_rows,
     simulate,
 )
 from .._result import Result
@@ -91,7 +91,7 @@ def timed(
         chunk = balanced_chunk(n, chunk, n_devices)
         fn, sharding = _sharded_simulate(method, chunk, tuple(devices))
         pad = (-n) % (chunk * n_devices)
-        rows = jax.device_put(jnp.concatenate([rows, jnp.repeat(rows[:1], pad, axis=0)]) if pad else rows, sharding)
+        rows = jax.device_put(pad_rows(rows, pad), sharding)
         compiled = fn.lower(scene, rows).compile()
     compile_s = time.perf_counter() - t0
     if warmup:
