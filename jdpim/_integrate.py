@@ -19,8 +19,9 @@ step ends beyond the barrier (``x_{n+1} < b``) the impact is located and resolve
    the end of its full step, exceeds ``limit / h`` redoes that step as
    ``k = min(max_substeps, ceil(h rho / limit))`` equal sub-steps of its own (see :class:`Substeps`).
 
-Only the crossing paths do the impact work, in rounds: each gathers up to ``ceil(n / 64)`` paths that still
-end beyond the barrier, resolves one impact of each and scatters them back. The rounds run in loops of
+Only the crossing paths do the impact work, in rounds: the paths are split into ``ceil(n / 64)`` lanes, and
+each round gathers the first path of every lane that still ends beyond the barrier, resolves one impact of
+each and scatters them back. The rounds run in loops of
 static trip count whose iterations are skipped (``lax.cond``) once no path is pending, so the resolution
 (and its sticking logic) is traced once whatever ``max_impacts``, and a step without any crossing in the
 batch skips all of it. The ``"mirror"`` method is the first-order "flip after the step" rule, kept for
@@ -246,6 +247,19 @@ def _mirror(model, x, v):
     return jnp.where(beyond, 2 * b - x, x), jnp.where(beyond, -model.r * v, v)
 
 
+def first_in_lanes(mask, lanes: int):
+    """Index of the first true entry of ``mask`` (``(n,)`` bool) in each of ``lanes`` runs of it, ``n`` if none.
+
+    Lane ``l`` covers the entries ``l G .. (l + 1) G - 1``, ``G = ceil(n / lanes)``: one reduction, where
+    ``jnp.nonzero(mask, size=lanes)`` takes two cumulative sums and a scatter (4.5 us against 0.5 us for
+    500 entries on a CPU).
+    """
+    n = mask.shape[0]
+    group = -(-n // lanes)
+    runs = jnp.pad(mask, (0, lanes * group - n)).reshape(lanes, group)
+    return jnp.where(jnp.any(runs, axis=1), jnp.arange(lanes) * group + jnp.argmax(runs, axis=1), n)
+
+
 def _gather(idx, tree):
     """Rows ``idx`` of every array in ``tree`` (indices past the end give the last row: padding)."""
     return jax.tree_util.tree_map(lambda a: a.at[idx].get(mode="clip"), tree)
@@ -270,8 +284,8 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
     (or one ``(n, 3, m)`` array).
 
     ``path_model(rand)`` builds one path's model from its random-parameter vector. Impacts are resolved
-    on the crossing paths only, in rounds of up to ``ceil(n / 64)`` of them gathered, resolved and
-    scattered back. With ``substeps`` (and a model that may be stiff) each path that needs it takes the
+    on the crossing paths only, in rounds of up to ``ceil(n / 64)`` of them (one per lane) gathered, resolved
+    and scattered back. With ``substeps`` (and a model that may be stiff) each path that needs it takes the
     step as sub-steps of its own (see :class:`Substeps`).
     """
     shared = path_model(None)
@@ -298,12 +312,12 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
         return lambda *args: jax.vmap(lambda *a: fn(*a[:-1], h=a[-1]))(*args, h)
 
     def resolve_crossings(state, e, rand, barrier, h):
-        """Every located impact of the step, in rounds: each gathers up to ``cap`` paths that still end beyond the
-        barrier after fewer than ``max_impacts`` resolutions, resolves one impact of each and scatters them back.
+        """Every located impact of the step, in rounds: the paths are split into ``cap`` lanes of ``G = ceil(n / cap)``,
+        and each round gathers the first path of every lane that still ends beyond the barrier after fewer than
+        ``max_impacts`` resolutions, resolves one impact of each and scatters them back.
 
-        ``max_impacts * ceil(n / cap)`` rounds suffice for any step: a round takes the first ``cap`` pending
-        paths, so once the paths before the k-th block of ``cap`` pending ones are done (by round
-        ``max_impacts * (k - 1)``), that block is gathered in every round. ``2**depth`` rounds run as a binary
+        ``max_impacts * G`` rounds suffice for any step: a round serves every lane with a pending path, and a
+        lane's ``G`` paths need at most ``max_impacts`` resolutions each. ``2**depth`` rounds run as a binary
         tree of ``fori_loop`` of two iterations (static trip counts, so reverse-mode AD works) whose subtrees
         are skipped once no path is pending: the resolution is traced once, and a step whose crossings fit in
         one round passes ``depth`` skipped subtrees.
@@ -317,7 +331,7 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
 
         def one_round(carry):
             state, count, _ = carry
-            idx = jnp.nonzero(pending(state, count), size=cap, fill_value=n)[0]
+            idx = first_in_lanes(pending(state, count), cap)
             sub_state, sub_e, sub_rand = _gather(idx, (state, e, rand))
             sub_h = h if jnp.ndim(h) == 0 else _gather(idx, h)
             state = _scatter(idx, state, per_path(resolve, sub_h)(*sub_state, sub_e, sub_rand))

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 import jdpim
-from jdpim._integrate import ImpactRule, _resolve_one, departure, integrate, locate_crossing
+from jdpim._integrate import ImpactRule, _resolve_one, departure, first_in_lanes, integrate, locate_crossing
 
 
 @functools.partial(jax.jit, static_argnames=("rule", "n_save"))
@@ -206,3 +206,24 @@ def test_bouncing_ball_chatters_to_rest(r):
     # first flight after the first impact (t in (1, 1 + 2r)): x = r (t - 1) - (t - 1)^2 / 2
     first = (t > 1) & (t < 1 + 2 * r)
     np.testing.assert_allclose(x[first], r * (t[first] - 1) - 0.5 * (t[first] - 1) ** 2, atol=1e-9)
+
+
+@pytest.mark.parametrize(("n", "lanes"), [(1, 1), (7, 3), (64, 1), (500, 8), (513, 9)])
+def test_first_in_lanes_is_the_first_true_entry_of_each_run(n, lanes):
+    rng = np.random.default_rng(n)
+    for density in (0.0, 0.01, 0.3, 1.0):
+        mask = rng.random(n) < density
+        group = -(-n // lanes)
+        expected = [next((i for i in range(lo, min(lo + group, n)) if mask[i]), n) for lo in range(0, lanes * group, group)]
+        np.testing.assert_array_equal(np.asarray(first_in_lanes(jnp.asarray(mask), lanes)), expected)
+
+
+def test_a_batch_crossing_together_matches_its_paths_alone():
+    """320 paths, 40 copies of 8 initial states, interleaved: in every lane of 64 paths 8 copies of each state
+    cross in the same step, so a step takes at least 8 rounds (and a second impact in one step, 16)."""
+    model = jdpim.VibroImpactOscillator(alpha=ALPHA, gamma=None, r=R)
+    x0, v0 = np.cos(PHASES), -np.sin(PHASES)
+    with jax.enable_x64(True):
+        alone, _ = run_paths(model, ImpactRule(), 0.25, 12.0, x0, v0, save_every=1)
+        together, _ = run_paths(model, ImpactRule(), 0.25, 12.0, np.tile(x0, 40), np.tile(v0, 40), save_every=1)
+    np.testing.assert_allclose(together, np.tile(alone, (40, 1, 1)), rtol=0, atol=1e-12)
