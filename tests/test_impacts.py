@@ -214,7 +214,8 @@ def test_first_in_lanes_is_the_first_true_entry_of_each_run(n, lanes):
     for density in (0.0, 0.01, 0.3, 1.0):
         mask = rng.random(n) < density
         group = -(-n // lanes)
-        expected = [next((i for i in range(lo, min(lo + group, n)) if mask[i]), n) for lo in range(0, lanes * group, group)]
+        starts = range(0, lanes * group, group)
+        expected = [next((i for i in range(lo, min(lo + group, n)) if mask[i]), n) for lo in starts]
         np.testing.assert_array_equal(np.asarray(first_in_lanes(jnp.asarray(mask), lanes)), expected)
 
 
