@@ -21,11 +21,10 @@ step ends beyond the barrier (``x_{n+1} < b``) the impact is located and resolve
 
 Only the crossing paths do the impact work, in rounds: the paths are split into ``ceil(n / 64)`` lanes, and
 each round gathers the first path of every lane that still ends beyond the barrier, resolves one impact of
-each and scatters them back. The rounds run in loops of
-static trip count whose iterations are skipped (``lax.cond``) once no path is pending, so the resolution
-(and its sticking logic) is traced once whatever ``max_impacts``, and a step without any crossing in the
-batch skips all of it. The ``"mirror"`` method is the first-order "flip after the step" rule, kept for
-comparison.
+each and scatters them back. The rounds run in loops of static trip count whose iterations are skipped
+(``lax.cond``) once no path is pending, so the resolution (and its sticking logic) is traced once whatever
+``max_impacts``, and a step without any crossing in the batch skips all of it. The ``"mirror"`` method is
+the first-order "flip after the step" rule, kept for comparison.
 """
 
 from __future__ import annotations
