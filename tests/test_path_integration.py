@@ -128,7 +128,7 @@ def _stationary_features(theta, settings):
     return jnp.concatenate([res.moment("x", 2)[None], res.pdf("x", jnp.array([0.3, 0.8]) + b)])
 
 
-GRAD_SETTINGS = jdpim.PathIntegration(n_x=61, n_v=121, x_max=2.5, v_max=2.5, tau=0.1)
+GRAD_SETTINGS = jdpim.PathIntegration(n_x=61, n_v=121, x_max=2.5, v_max=2.5, tau=0.1, order=4)
 
 
 def _central(f, theta, n=5, eps=1e-4):
@@ -137,8 +137,8 @@ def _central(f, theta, n=5, eps=1e-4):
 
 
 def test_stationary_grad_matches_central_differences():
-    """Reverse mode through the implicit (custom_root) solve: one adjoint GMRES solve for all five parameters."""
-    settings = jdpim.PathIntegration(n_x=41, n_v=81, x_max=2.5, v_max=2.5, tau=0.2)
+    """Reverse mode through the implicit (custom_root) solve: one adjoint solve for all five parameters."""
+    settings = jdpim.PathIntegration(n_x=41, n_v=81, x_max=2.5, v_max=2.5, tau=0.2, order=4)
     with jax.enable_x64(True):
         theta = jnp.array([0.05, 0.05, 0.87, 0.03, 0.1])  # alpha, gamma, r, D, barrier
         f = jax.jit(lambda th: _stationary_features(th, settings)[0])
