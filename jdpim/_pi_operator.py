@@ -48,8 +48,9 @@ class Grid:
     dx: Any
     dv: Any
 
-    def mass_weights(self, order: int, folded: bool):
-        """Node areas ``(n_x, n_v)``: integrals of the cardinal functions (see ``cardinal_areas``).
+    def axis_weights(self, order: int, folded: bool):
+        """Quadrature weights ``(n_x,)`` and ``(n_v,)`` of the nodes: integrals of the cardinal functions
+        (see ``cardinal_areas``) times the spacing.
 
         ``folded``: the lower ``x`` edge is a barrier whose ghost nodes are folded back onto the grid
         (then the barrier node has half an area, as the fold line of the unfolded grid).
@@ -57,9 +58,14 @@ class Grid:
         wx = cardinal_areas(self.x.shape[0], order, "x")
         if folded:
             wx = np.concatenate([[0.5], np.ones(order), wx[order + 1 :]])
-        wx = jnp.asarray(wx, self.x.dtype)
-        wv = jnp.asarray(cardinal_areas(self.v.shape[0], order, "v"), self.v.dtype)
-        return wx[:, None] * wv[None, :] * (self.dx * self.dv)
+        wx = jnp.asarray(wx, self.x.dtype) * self.dx
+        wv = jnp.asarray(cardinal_areas(self.v.shape[0], order, "v"), self.v.dtype) * self.dv
+        return wx, wv
+
+    def mass_weights(self, order: int, folded: bool):
+        """Node areas ``(n_x, n_v)``: the outer product of ``axis_weights``."""
+        wx, wv = self.axis_weights(order, folded)
+        return wx[:, None] * wv[None, :]
 
 
 @functools.lru_cache(maxsize=32)

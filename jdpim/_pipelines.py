@@ -292,7 +292,7 @@ def run_paths(
 def _finish(scene: Scene, states, weights, method: str) -> Result:
     barrier = scene.model.barrier if scene.model.has_barrier else None
     res = Result(
-        times=np.asarray(scene.save_at, scene.float_dtype),  # concrete, so Result.pdf works under jit/vmap
+        times=scene.save_at,
         states=states,
         weights=weights,
         barrier=barrier,

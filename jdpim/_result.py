@@ -9,7 +9,7 @@ import numpy as np
 
 from . import _density
 from ._pytree import check_grid, check_points, check_real, concrete, plain, pytree_dataclass, static_field
-from ._scene import saved_index
+from ._scene import saved_index, static_times
 
 VARIABLES = ("x", "v")
 
@@ -19,25 +19,34 @@ class Result:
     """Weighted response states of ``N`` paths (DPIM points or Monte Carlo samples).
 
     Attributes:
-        times: saved times, shape ``(S,)``, s.
+        times: saved times, s: a tuple of ``S`` floats. They are pytree structure, not leaves: a saved time
+            picks an index, so a result passed into ``jax.jit`` or ``jax.vmap`` keeps them concrete and
+            every method works there (an array given here is converted; float32 values are read at their
+            own precision, so ``0.2`` stored in float32 is ``0.2``).
         states: ``(x, v)`` per path and saved time, shape ``(N, S, 2)`` (path axis leading).
         weights: probability of each path, shape ``(N,)``, summing to 1.
         barrier: barrier position (the displacement kernel is reflected there), or ``None``.
         method: ``"dpim"`` or ``"monte_carlo"``.
+
+    Results are pytrees (leaves: ``states``, ``weights``, ``barrier``): they pass through ``jax.jit`` and
+    ``jax.vmap`` as arguments and outputs.
     """
 
-    times: Any
-    states: Any
-    weights: Any
-    barrier: Any
-    method: str = static_field()
+    times: tuple = static_field()
+    states: Any = None
+    weights: Any = None
+    barrier: Any = None
+    method: str = static_field(default="dpim")
+
+    def __post_init__(self):
+        object.__setattr__(self, "times", static_times(self.times))
 
     @property
     def n_paths(self) -> int:
         return int(np.shape(self.weights)[0])
 
     def _index(self, t) -> int:
-        return saved_index(np.asarray(self.times), t)
+        return saved_index(self.times, t)
 
     def samples(self, var: str, t: float):
         """The values of ``var`` (``"x"`` or ``"v"``) of every path at saved time ``t``; shape ``(N,)``."""

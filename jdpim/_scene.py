@@ -163,8 +163,27 @@ class Scene:
         return saved_index(self.save_at, t)
 
 
+def static_times(times) -> tuple[float, ...]:
+    """Saved times as a tuple of Python floats (pytree structure); float32 values at their own precision."""
+    if isinstance(times, jax.core.Tracer):
+        raise TypeError("times must be concrete (saved times are static structure), got a traced array")
+    arr = np.asarray(times)
+    if arr.ndim != 1 or not np.issubdtype(arr.dtype, np.number):
+        raise ValueError(f"times must be a 1-D sequence of saved times, got {times!r}")
+    if arr.dtype.kind == "f" and arr.dtype.itemsize < 8:  # 0.2 stored in float32 is read as 0.2
+        return tuple(float(str(x)) for x in arr)
+    return tuple(float(x) for x in arr)
+
+
 def saved_index(save_at: Sequence[float], t: float) -> int:
-    """Index of ``t`` among the saved times, with a clear error when it was not saved."""
+    """Index of ``t`` among the saved times, with a clear error when it was not saved.
+
+    ``t`` is a Python or NumPy number, or a concrete 0-d array; a traced ``t`` cannot pick a saved time.
+    """
+    if isinstance(t, jax.core.Tracer):
+        raise TypeError("t must be a concrete saved time (it picks an index), got a traced value")
+    if np.ndim(t) != 0:
+        raise ValueError(f"t must be one saved time (a scalar), got shape {list(np.shape(t))}")
     check_real("t", t)
     times = np.asarray(save_at)
     rel = max(1e-9, 4 * float(np.finfo(times.dtype).eps)) if times.dtype.kind == "f" else 1e-9  # float32 times

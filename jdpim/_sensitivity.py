@@ -26,7 +26,6 @@ from collections.abc import Mapping, Sequence
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from ._density import _kernel_matrix
 from ._density import bandwidth as rule_bandwidth
@@ -67,6 +66,7 @@ def _nominal(scene: Scene, name: str):
     return jnp.asarray(value, scene.float_dtype)
 
 
+@jax.tree_util.register_pytree_node_class
 @dataclasses.dataclass(frozen=True, eq=False)
 class Sensitivity(Mapping):
     """Derivatives ``name -> dp/dtheta`` on the grid (a read-only mapping), with standard errors.
@@ -78,6 +78,8 @@ class Sensitivity(Mapping):
         estimators: ``{name: estimator}`` actually used (the ``PathIntegration`` settings for path integration).
         t: the time of the derivative, s (``inf`` for a stationary density).
         method: ``"path_integration"``, ``"dpim"`` or ``"monte_carlo"``.
+
+    A pytree (leaves: the arrays of ``value`` and ``stderr``): it passes through ``jax.jit`` and ``jax.vmap``.
     """
 
     value: dict
@@ -85,6 +87,15 @@ class Sensitivity(Mapping):
     estimators: dict
     t: float
     method: str = "dpim"
+
+    def tree_flatten(self):
+        """Leaves: the arrays of ``value`` and ``stderr``; the estimators, ``t`` and ``method`` are structure."""
+        return (self.value, self.stderr), (tuple(self.estimators.items()), self.t, self.method)
+
+    @classmethod
+    def tree_unflatten(cls, aux, children):
+        estimators, t, method = aux
+        return cls(*children, dict(estimators), t, method)
 
     def __getitem__(self, name):
         return self.value[name]
@@ -379,7 +390,7 @@ def _pathwise(scene, names, estimators, var, grid, t, values, bandwidth, rule, m
         states = run_paths(s, rows, kind=method, chunk_size=chunk)
         barrier = s.model.barrier if s.model.has_barrier else None
         res = Result(
-            times=np.asarray(scene.save_at, scene.float_dtype),
+            times=scene.save_at,
             states=states,
             weights=weights,
             barrier=barrier,
