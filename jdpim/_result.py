@@ -66,6 +66,10 @@ class Result:
         bad = ~jnp.all(jnp.isfinite(self.states), axis=-1)
         return jnp.sum(jnp.where(bad, self.weights[:, None], 0.0), axis=0)
 
+    def mass(self, t: float):
+        """Probability carried by the paths with finite states at saved time ``t`` (``1 - lost_mass``)."""
+        return 1.0 - self.lost_mass()[self._index(t)]
+
     def bandwidth(self, var: str, t: float, rule: str = "chen", *, dim: int = 1, c: float | None = None):
         """The rule-based kernel standard deviation for ``var`` at time ``t`` (see ``jdpim.bandwidth``)."""
         return _density.bandwidth(self.samples(var, t), self.weights, rule, dim=dim, c=c)
