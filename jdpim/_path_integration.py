@@ -19,7 +19,7 @@ from collections.abc import Callable
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.scipy.sparse.linalg import bicgstab
+from jax.scipy.sparse.linalg import bicgstab, gmres
 
 from ._grid_result import GridResult
 from ._models import AbstractOscillator, VibroImpactOscillator
@@ -62,8 +62,9 @@ class PathIntegration:
             the L1 residual of a step is below 1e-8 (float64) or 3e-6 (float32).
         max_iter, max_restarts: BiCGStab iterations per attempt and attempts (each from the best iterate so
             far) of every linear solve (Newton steps, and the tangent and adjoint solves of derivatives),
-            which stops at a relative residual of 1e-9 (float64) or 1e-5 (float32). A solve that ends above
-            100 times that returns NaN (non-finite, reported with a ``PathIntegrationWarning``).
+            which stops at a relative residual of 1e-9 (float64) or 1e-5 (float32); where they do not reach
+            it, up to ``max_restarts`` cycles of GMRES with Krylov dimension ``restart`` follow. A solve that
+            ends above 100 times the tolerance returns NaN (non-finite, with a ``PathIntegrationWarning``).
         warmup: plain steps before the Newton solve (from the averaged law ``exp(-(a_e H + b H^2)/q)``
             estimated as for the extents, or a Gaussian when the parameters are traced).
         leak_tol: largest mass allowed in the outermost node rows before a ``PathIntegrationWarning``.
@@ -89,12 +90,13 @@ class PathIntegration:
     newton: int = 3
     max_iter: int = 1000
     max_restarts: int = 4
+    restart: int = 100
     warmup: int = 200
     leak_tol: float = 1e-5
     estimate_error: bool = False
 
     def __post_init__(self):
-        for name, low in (("n_x", 8), ("n_v", 8), ("substeps", 1), ("newton", 1), ("max_iter", 1)):
+        for name, low in (("n_x", 8), ("n_v", 8), ("substeps", 1), ("newton", 1), ("max_iter", 1), ("restart", 2)):
             check_int(name, getattr(self, name), low=low)
         check_int("max_restarts", self.max_restarts, low=1)
         check_int("warmup", self.warmup, low=0)
@@ -343,14 +345,14 @@ def _warn_unsolved(relres, solved) -> None:
         return
     warnings.warn(
         f"path integration: a linear solve stopped at relative residual {float(np.max(relres)):.2e}; its result "
-        "(a Newton step, or a derivative) is NaN: raise max_iter or max_restarts, or refine the grid",
+        "(a Newton step, or a derivative) is NaN: raise max_iter, max_restarts or restart, or refine the grid",
         PathIntegrationWarning,
         stacklevel=2,
     )
 
 
 def _linear_solve(settings: PathIntegration, matvec, b):
-    """``x`` with ``matvec(x) = b`` by BiCGStab, restarted from its best iterate; NaN if it does not converge.
+    """``x`` with ``matvec(x) = b`` by BiCGStab, restarted from its best iterate, then GMRES; NaN if unsolved.
 
     Restarted GMRES stagnates on the adjoint of the stationary step (the transposed flow gathers where the
     flow scatters): measured, relative residual 3e-2 after 6 restarts of 60 (121 x 241 nodes, alpha = 0.05,
@@ -362,17 +364,30 @@ def _linear_solve(settings: PathIntegration, matvec, b):
     def relres(x):
         return jnp.linalg.norm(matvec(x) - b) / norm_b
 
-    def attempt(carry):
-        k, x, err = carry
-        y, _ = bicgstab(matvec, b, x0=x, tol=tol, maxiter=settings.max_iter)
-        e = relres(y)
-        better = e < err  # False for a breakdown's NaN
-        return k + 1, jnp.where(better, y, x), jnp.where(better, e, err)
+    def attempt(solver):
+        def body(carry):
+            k, x, err = carry
+            y = solver(x)
+            e = relres(y)
+            better = e < err  # False for a breakdown's NaN
+            return k + 1, jnp.where(better, y, x), jnp.where(better, e, err)
 
-    one = jnp.ones((), b.dtype)
-    _, x, err = jax.lax.while_loop(
-        lambda c: (c[0] < settings.max_restarts) & (c[2] > tol), attempt, (0, jnp.zeros_like(b), one)
-    )
+        return body
+
+    def bicg(x):
+        return bicgstab(matvec, b, x0=x, tol=tol, maxiter=settings.max_iter)[0]
+
+    def krylov(x):
+        return gmres(matvec, b, x0=x, tol=tol, restart=settings.restart, maxiter=1)[0]
+
+    def unsolved(c):
+        return (c[0] < settings.max_restarts) & (c[2] > tol)
+
+    carry = (0, jnp.zeros_like(b), jnp.ones((), b.dtype))
+    _, x, err = jax.lax.while_loop(unsolved, attempt(bicg), carry)
+    # where BiCGStab stagnates or breaks down (rarely: measured once in 40 adjoint solves), GMRES polishes its
+    # best iterate; under vmap this loop runs only while some solve in the batch is unsolved
+    _, x, err = jax.lax.while_loop(unsolved, attempt(krylov), (0, x, err))
     solved = err <= 100 * tol
     jax.debug.callback(_warn_unsolved, err, solved)
     return jnp.where(solved, x, jnp.nan)

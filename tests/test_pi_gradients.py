@@ -104,7 +104,9 @@ def test_traced_parameters_that_choose_the_grid_fail_in_one_line():
 
 def test_a_linear_solve_that_does_not_converge_gives_nan_and_warns():
     scene = _scene(0.05, 0.03, 0.9, 0.05, dtype=None)
-    starved = jdpim.PathIntegration(n_x=41, n_v=81, x_max=3.0, v_max=3.0, warmup=0, max_iter=1, max_restarts=1)
+    starved = jdpim.PathIntegration(
+        n_x=41, n_v=81, x_max=3.0, v_max=3.0, warmup=0, max_iter=1, max_restarts=1, restart=2
+    )
     with pytest.warns(jdpim.PathIntegrationWarning) as record:
         res = jdpim.path_integration(scene, starved, stationary=True)
     messages = [str(w.message) for w in record]
