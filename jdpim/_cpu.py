@@ -80,3 +80,11 @@ def start_devices(n: int | None = None) -> str:
             raise ValueError(str(err)) from None
     devices = jax.local_devices()
     return f"{len(devices)} {devices[0].platform.upper()} device(s)"
+
+
+def host_memory() -> int:
+    """Bytes of physical memory of this host (``8 GiB`` where the OS does not say)."""
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (AttributeError, ValueError, OSError):
+        return 8 * 2**30

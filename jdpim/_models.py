@@ -56,9 +56,9 @@ class AbstractOscillator:
 
 
 def _check_impact(r, barrier) -> None:
-    check_real("r", r, low=0.0, high=1.0)
+    check_real("r", r, low=0.0, high=1.0, scalar=True)
     if barrier is not None:
-        check_real("barrier", barrier)
+        check_real("barrier", barrier, scalar=True)
 
 
 @pytree_dataclass
@@ -90,8 +90,8 @@ class VibroImpactOscillator(AbstractOscillator):
 
     def __post_init__(self):
         for name in ("alpha", "gamma"):
-            check_real(name, getattr(self, name), low=0.0)
-        check_real("omega", self.omega, low=0.0, low_open=True)
+            check_real(name, getattr(self, name), low=0.0, scalar=True)
+        check_real("omega", self.omega, low=0.0, low_open=True, scalar=True)
         _check_impact(self.r, self.barrier)
 
     @property

@@ -27,6 +27,8 @@ class WhiteNoise:
     D: Any = 0.03
 
     def __post_init__(self):
+        if isinstance(self.D, (str, bytes)):
+            raise TypeError(f"D must be a real number or a matrix of them, got {self.D!r}")
         arr = concrete(self.D)
         if arr is None:
             return

@@ -9,7 +9,6 @@ streamed in blocks of chunks from a host loop, and the path axis is sharded over
 from __future__ import annotations
 
 import functools
-import os
 import sys
 import time
 import warnings
@@ -18,6 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._cpu import host_memory
 from ._distributions import elementary_ppf
 from ._excitation import gaussian_coefficients, random_function_coefficients, synthesize
 from ._integrate import integrate, with_random_parameters
@@ -51,15 +51,22 @@ def memory_budget() -> int:
     stats = jax.local_devices()[0].memory_stats() or {}
     if "bytes_limit" in stats:
         return int(DEVICE_MEMORY_SHARE * stats["bytes_limit"])
-    return min(MEMORY_BUDGET, _host_memory() // (4 * jax.local_device_count()))
+    return min(MEMORY_BUDGET, host_memory() // (4 * jax.local_device_count()))
 
 
-def _host_memory() -> int:
-    """Bytes of physical memory of this host (``MEMORY_BUDGET * 8`` where the OS does not say)."""
-    try:
-        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    except (AttributeError, ValueError, OSError):
-        return 8 * MEMORY_BUDGET
+def check_memory(scene: Scene, n_paths: int, name: str, input_bytes: int) -> None:
+    """Fail at once, naming ``name``, when a run's saved states and inputs would not fit in half the host's memory.
+
+    Counted per path: the saved states twice (device result and host copy, ``2 S`` values per path each)
+    and ``input_bytes`` of inputs (DPIM: the point selection's work; Monte Carlo: the key).
+    """
+    need = n_paths * (2 * 2 * len(scene.save_at) * scene.float_dtype.itemsize + input_bytes)
+    have = host_memory()
+    if need > have // 2:
+        raise ValueError(
+            f"{name}={n_paths} needs about {need / 2**30:.3g} GiB for its saved states and inputs, more than half "
+            f"of this host's {have / 2**30:.3g} GiB: use fewer {name}, or fewer saved times, and pool several runs"
+        )
 
 
 def default_chunk_size(scene: Scene, n_paths: int) -> int:
@@ -211,9 +218,11 @@ class _Progress:
     def __init__(self, total: int, label: str, enabled: bool):
         self.total, self.label, self.enabled, self.t0 = total, label, enabled, time.perf_counter()
 
-    def update(self, done: int):
+    def update(self, done: int, out=None):
+        """Report ``done`` paths, once ``out`` (the block just dispatched, if given) has been computed."""
         if not self.enabled:
             return
+        jax.block_until_ready(out)
         elapsed = time.perf_counter() - self.t0
         eta = elapsed * (self.total - done) / max(done, 1)
         end = "\n" if done >= self.total else ""
@@ -276,7 +285,7 @@ def run_paths(
     home = home_device(devices)
     if n_blocks == 1:
         out = run(scene, jax.device_put(rows, sharding))
-        bar.update(n)
+        bar.update(n, out)
         if home is not None:
             out = jax.device_put(out, home)
         return jax.tree_util.tree_map(lambda a: a[:n], out) if pad else out
@@ -332,6 +341,8 @@ def _chunk(scene: Scene, n: int, chunk_size: int | None) -> int:
 def dpim_inputs(scene: Scene, n_points: int = 1000, *, points: PointSet | None = None, chunk_size=None):
     """``(rows, weights, chunk_size)`` of a DPIM run: the points ``(N, d)``, their probabilities ``(N,)``."""
     if points is None:
+        check_int("n_points", n_points, low=2)
+        check_memory(scene, n_points, "n_points", 64 * len(scene.input_distributions()))
         points = dpim_points(scene, n_points)
     elif not isinstance(points, PointSet):
         raise TypeError(f"points must be a jdpim.PointSet, got {type(points).__name__}")
@@ -346,6 +357,7 @@ def monte_carlo_inputs(scene: Scene, n_samples: int = 10_000, *, seed: int = 0, 
     """``(rows, weights, chunk_size)`` of a Monte Carlo run: per-path key data ``(n, 2)``, weights ``1/n``."""
     n = check_int("n_samples", n_samples, low=2)
     seed = check_int("seed", seed, low=0)
+    check_memory(scene, n, "n_samples", 8)
     keys = jax.random.key_data(jax.random.split(jax.random.key(seed), n))
     return keys, jnp.full((n,), 1.0 / n, scene.float_dtype), _chunk(scene, n, chunk_size)
 

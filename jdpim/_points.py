@@ -23,6 +23,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.stats import qmc
 
+from ._cpu import host_memory
 from ._distributions import Distribution
 from ._pytree import check_int, pytree_dataclass, static_field
 
@@ -91,8 +92,14 @@ def select_points(
     """
     n_points = check_int("n_points", n_points, low=2)
     if n_reference is None:
-        n_reference = 2 ** int(np.clip(math.ceil(math.log2(1000 * n_points)), 18, 23))
+        n_reference = max(n_points, 2 ** int(np.clip(math.ceil(math.log2(1000 * n_points)), 18, 23)))
     n_reference = check_int("n_reference", n_reference, low=n_points)
+    need = 64 * (n_points + n_reference) * max(1, len(tuple(distributions)))  # points, samples, their work
+    if need > host_memory() // 2:
+        raise ValueError(
+            f"n_points={n_points} needs about {need / 2**30:.3g} GiB for the point selection, more than half of "
+            f"this host's {host_memory() / 2**30:.3g} GiB: use fewer n_points"
+        )
     seed = check_int("seed", seed, low=0)
     distributions = tuple(distributions)
     if not distributions:

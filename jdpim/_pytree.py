@@ -59,15 +59,20 @@ def check_real(
     high: float | None = None,
     low_open: bool = False,
     high_open: bool = False,
+    scalar: bool = False,
 ) -> None:
     """Raise ``ValueError`` unless every element of ``value`` is finite and inside the stated range.
 
-    Tracers and placeholders pass unchecked (they are validated when the caller builds the object
-    with concrete values).
+    Text raises ``TypeError``; ``scalar=True`` also rejects arrays of more than one number. Tracers and
+    placeholders pass unchecked (they are validated when the caller builds the object with concrete values).
     """
+    if isinstance(value, (str, bytes)):
+        raise TypeError(f"{name} must be a real number, got {value!r}")
     arr = concrete(value)
     if arr is None:
         return
+    if scalar and arr.ndim != 0:
+        raise ValueError(f"{name} must be a scalar (one number), got shape {list(arr.shape)}: {plain(value)!r}")
     if not np.issubdtype(arr.dtype, np.number) or np.iscomplexobj(arr):
         raise TypeError(f"{name} must be real-valued, got {plain(value)!r}")
     if not np.all(np.isfinite(arr)):

@@ -66,8 +66,10 @@ class Scene:
             raise TypeError(f"model must be an oscillator (e.g. jdpim.VibroImpactOscillator), got {self.model!r}")
         if not isinstance(self.noise, WhiteNoise):
             raise TypeError(f"noise must be a jdpim.WhiteNoise, got {self.noise!r}")
-        check_real("t_end", self.t_end, low=0.0, low_open=True)
-        check_real("dt", self.dt, low=0.0, low_open=True)
+        check_real("t_end", self.t_end, low=0.0, low_open=True, scalar=True)
+        check_real("dt", self.dt, low=0.0, low_open=True, scalar=True)
+        if concrete(self.t_end) is None or concrete(self.dt) is None:
+            raise TypeError(f"t_end and dt must be numbers (they fix the time grid), got {self.t_end!r}, {self.dt!r}")
         if not self.dt < self.t_end:
             raise ValueError(f"dt must lie in (0, t_end={self.t_end!r}), got {self.dt!r}")
         ratio = self.t_end / self.dt
@@ -91,9 +93,9 @@ class Scene:
                 f"the model's gains expect {n_sources_of(self.model)} noise source(s) but noise.D "
                 f"has {self.noise.n_sources}"
             )
-        check_real("v0", self.v0)
+        check_real("v0", self.v0, scalar=True)
         if self.x0 is not None:
-            check_real("x0", self.x0)
+            check_real("x0", self.x0, scalar=True)
             x0, b = concrete(self.x0), concrete(self.model.barrier)
             if x0 is not None and b is not None and self.model.has_barrier and np.any(x0 < b):
                 raise ValueError(
@@ -103,7 +105,10 @@ class Scene:
     def _checked_save_at(self, save_at) -> tuple[float, ...]:
         if save_at is None:
             return (self.t_end,)
-        times = np.atleast_1d(np.asarray(save_at, dtype=float))
+        try:
+            times = np.atleast_1d(np.asarray(save_at, dtype=float))
+        except (TypeError, ValueError):
+            raise TypeError(f"save_at must be a sequence of times in s, got {save_at!r}") from None
         if times.ndim != 1 or times.size == 0:
             raise ValueError(f"save_at must be a non-empty 1-D sequence of times, got {save_at!r}")
         check_real("save_at", times, low=0.0, high=self.t_end)

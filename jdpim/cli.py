@@ -105,6 +105,21 @@ def _run_parser(sub) -> None:
     _common(p)
 
 
+# options of `jdpim run` that set the main job's scene (refused with a scene file, which carries its own)
+MAIN_JOB_OPTIONS = (
+    "--D",
+    "--alpha",
+    "--gamma",
+    "--r",
+    "--points",
+    "--samples",
+    "--t-end",
+    "--dt",
+    "--save-at",
+    "--repeats",
+)
+
+
 def _paper_parser(sub) -> None:
     p = sub.add_parser(
         "paper",
@@ -320,6 +335,15 @@ def main(argv=None) -> int:
         args = p.parse_args(argv)
     except SystemExit as exit_:  # argparse: --help (0) or a bad value (2, one line already printed)
         return int(exit_.code or 0)
+    if args.command == "run" and args.scene_file is not None:
+        given = sorted({a.split("=")[0] for a in argv if a.split("=")[0] in MAIN_JOB_OPTIONS})
+        if given:
+            print(
+                f"jdpim run: error: {', '.join(given)} set{'s' if len(given) == 1 else ''} the main job's scene; "
+                f"a scene file carries its own settings: edit {args.scene_file}",
+                file=sys.stderr,
+            )
+            return 2
     from jdpim._cpu import start_devices
     from jdpim._scenefile import SceneFileError
 

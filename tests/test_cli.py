@@ -118,6 +118,14 @@ def test_bad_scene_files_fail_in_one_line_naming_file_and_key(tmp_path, capsys, 
     assert message in err and err.count("\n") == 1
 
 
+@pytest.mark.parametrize("extra", [["--D", "0.5"], ["--r=0.5", "--points", "10"]])
+def test_main_job_options_beside_a_scene_file_are_refused(extra, capsys):
+    example = pathlib.Path(__file__).parents[1] / "examples" / "reference.toml"
+    assert cli.main(["run", str(example), *extra]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "carries its own settings" in err and extra[0].split("=")[0] in err
+
+
 def test_unknown_table(tmp_path):
     path = tmp_path / "s.toml"
     path.write_text(_scene_text() + "\n[solver]\nrtol = 1e-3\n")

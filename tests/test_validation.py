@@ -171,3 +171,51 @@ def test_saved_times_match_at_their_own_precision():
         saved_index(times, 0.2001)
     with pytest.raises(ValueError, match=r"t=0\.2000001 was not saved"):
         saved_index((0.1, 0.2), 0.2000001)  # float64 times keep the tight tolerance
+
+
+def _tiny():
+    return jdpim.Scene(model(), t_end=1.0, dt=0.01)
+
+
+TYPED = {
+    # text, sequences and floats where a number or an integer is wanted fail before any tracing
+    "r-text": (lambda: model(r="high"), TypeError, r"^r must be a real number, got 'high'$"),
+    "alpha-text": (lambda: model(alpha="0.03"), TypeError, r"^alpha must be a real number"),
+    "barrier-text": (lambda: model(barrier="abc"), TypeError, r"^barrier must be a real number"),
+    "alpha-list": (lambda: model(alpha=[0.03, 0.05]), ValueError, r"^alpha must be a scalar"),
+    "barrier-pair": (lambda: model(barrier=(-1.0, 1.0)), ValueError, r"^barrier must be a scalar"),
+    "omega-text": (lambda: model(omega="1"), TypeError, r"^omega must be a real number"),
+    "general-r-text": (lambda: jdpim.Oscillator(r="x"), TypeError, r"^r must be a real number"),
+    "D-text": (lambda: jdpim.WhiteNoise(D="x"), TypeError, r"^D must be a real number"),
+    "t_end-text": (lambda: scene(t_end="10"), TypeError, r"^t_end must be a real number"),
+    "save_at-text": (lambda: scene(save_at=["a"]), TypeError, r"^save_at must be a sequence of times"),
+    "x0-list": (lambda: scene(x0=[0.1, 0.2]), ValueError, r"^x0 must be a scalar"),
+    "uniform-text": (lambda: jdpim.Uniform("a", 1.0), TypeError, r"^low must be a real number"),
+    "normal-text": (lambda: jdpim.Normal(0.0, "b"), TypeError, r"^std must be a real number"),
+    "pi-n_x-float": (lambda: jdpim.PathIntegration(n_x=61.0), TypeError, r"^n_x must be an integer"),
+    "pi-tau-text": (lambda: jdpim.PathIntegration(tau="0.1"), TypeError, r"^tau must be a real number"),
+    "pi-estimate": (lambda: jdpim.PathIntegration(estimate_error="yes"), TypeError, r"^estimate_error must be"),
+    "impacts-text": (lambda: jdpim.ImpactRule(max_impacts="2"), TypeError, r"^max_impacts must be an integer"),
+    "substeps-text": (lambda: jdpim.Substeps(limit="0.5"), TypeError, r"^limit must be a real number"),
+    "spectral-text": (lambda: jdpim.SpectralRepresentation(cutoff="x"), TypeError, r"^cutoff must be a real number"),
+    "n_samples-float": (lambda: jdpim.monte_carlo(_tiny(), n_samples=2.5), TypeError, r"^n_samples must be an integer"),
+    "seed-text": (lambda: jdpim.monte_carlo(_tiny(), n_samples=20, seed="a"), TypeError, r"^seed must be an integer"),
+    "n_points-text": (lambda: jdpim.dpim(_tiny(), n_points="10"), TypeError, r"^n_points must be an integer"),
+    "n_points-1e9": (lambda: jdpim.dpim(_tiny(), n_points=1e9), TypeError, r"^n_points must be an integer"),
+    # runs that cannot fit fail at once, naming the public parameter and the memory
+    "n_samples-huge": (
+        lambda: jdpim.monte_carlo(_tiny(), n_samples=10**10),
+        ValueError,
+        r"^n_samples=10000000000 needs about .* GiB .* more than half of this host's",
+    ),
+    "n_points-huge": (lambda: jdpim.dpim(_tiny(), n_points=10**10), ValueError, r"^n_points=10000000000 needs about"),
+    "points-huge": (lambda: jdpim.dpim_points(_tiny(), 10**10), ValueError, r"^n_points=10000000000 needs about"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(TYPED))
+def test_typed_inputs_fail_in_one_line_naming_the_parameter(case):
+    make, kind, message = TYPED[case]
+    with pytest.raises(kind, match=message) as info:
+        make()
+    assert type(info.value) is kind and "\n" not in str(info.value)
