@@ -17,6 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._ad_guard import guard
 from ._cpu import host_memory
 from ._distributions import elementary_ppf
 from ._excitation import gaussian_coefficients, random_function_coefficients, synthesize
@@ -168,6 +169,9 @@ def simulate(scene: Scene, rows, *, kind: str, chunk_size: int, accumulate=None)
     return _simulate(scene, rows, kind=kind, chunk_size=chunk_size, accumulate=accumulate)
 
 
+_jitted_simulate = jax.jit(_simulate, static_argnames=("kind", "chunk_size", "accumulate"))
+
+
 def _is_traced(tree) -> bool:
     return any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(tree))
 
@@ -261,10 +265,12 @@ def run_paths(
         label: the progress line's prefix.
         accumulate: per-step running sums (see ``integrate``); then the pair ``(states, sums)`` is returned.
 
-    Under a JAX transformation (traced scene or rows) this is :func:`simulate`, unsharded and unstreamed.
+    Under a JAX transformation (traced scene or rows) this is :func:`simulate`, unsharded and unstreamed;
+    differentiating paths that start at rest on the barrier then warns (``SensitivityWarning``: pathwise
+    derivatives through that grazing impact are biased).
     """
     if _is_traced((scene, rows)):
-        return simulate(scene, rows, kind=kind, chunk_size=chunk_size, accumulate=accumulate)
+        return simulate(guard(scene), rows, kind=kind, chunk_size=chunk_size, accumulate=accumulate)
     devices = _devices(devices)
     n = rows.shape[0]
     chunk_size = balanced_chunk(n, chunk_size, len(devices))

@@ -1,0 +1,62 @@
+"""A warning raised when pathwise derivatives are taken through a grazing start.
+
+Paths that start at rest on the barrier (the default start) graze it at once: the impact's saltation
+factor divides by an impact speed near zero, so the pathwise derivative of each path is dominated by
+that first contact and the derivative of the density is wrong (measured: ``jax.grad`` through
+``jdpim.dpim`` at t = 2, 256 points, reference model: dp/dalpha -2.3 in float32 and +0.6 in float64
+against -0.4 by central differences). Differentiation is detected by a ``jax.custom_jvp`` identity on the
+scene's parameters, whose tangent rule runs only when something is differentiated (forward or reverse
+mode, also under ``jit``): values and cost are unchanged otherwise.
+"""
+
+from __future__ import annotations
+
+import functools
+import warnings
+
+import jax
+import numpy as np
+
+from ._estimators import SensitivityWarning
+from ._pytree import concrete
+from ._scene import Scene
+
+GRAZING = (
+    "pathwise derivatives through a start at rest on the barrier (a grazing impact) are biased: each path's "
+    "tangent divides by its impact speed near zero (measured at t = 2: dp/dalpha -2.3 against -0.4 by central "
+    "differences); use jdpim.sensitivity (path integration, or its likelihood-ratio and central-difference "
+    "estimators), or start off the barrier (x0 > barrier)"
+)
+
+
+def starts_grazing(scene: Scene) -> bool:
+    """Whether every path starts at rest on the barrier (``x0`` at the barrier or ``None``, ``v0 = 0``)."""
+    model = scene.model
+    if not model.has_barrier or any(name in ("x0", "v0") for name, _ in scene.random):
+        return False
+    v0 = concrete(scene.v0)
+    if v0 is None or np.any(v0 != 0):
+        return False
+    if scene.x0 is None:
+        return True
+    x0, b = concrete(scene.x0), concrete(model.barrier)
+    return x0 is not None and b is not None and bool(np.all(x0 == b))
+
+
+def guard(scene: Scene) -> Scene:
+    """``scene`` itself; differentiating through it warns (``SensitivityWarning``) when its paths start grazing."""
+    if not starts_grazing(scene):
+        return scene
+    leaves, treedef = jax.tree_util.tree_flatten(scene)
+    return jax.tree_util.tree_unflatten(treedef, _watched(GRAZING, leaves))
+
+
+@functools.partial(jax.custom_jvp, nondiff_argnums=(0,))
+def _watched(message, leaves):
+    return leaves
+
+
+@_watched.defjvp
+def _watched_jvp(message, primals, tangents):
+    warnings.warn(message, SensitivityWarning, stacklevel=2)
+    return primals[0], tangents[0]
