@@ -4,6 +4,7 @@ Integral Method (DPIM), with Monte Carlo simulation and exact solutions beside i
 import importlib.metadata as _metadata
 
 from . import exact as exact
+from . import figures as figures
 from . import metrics as metrics
 from ._cpu import use_cpu_cores as use_cpu_cores
 from ._density import RULES as RULES

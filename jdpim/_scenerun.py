@@ -9,7 +9,7 @@ import time
 
 import numpy as np
 
-from . import _figures
+from . import figures
 from ._scenefile import SceneFile
 
 
@@ -35,8 +35,8 @@ def grids(results, barrier, n_grid: int, q: float = 0.999):
     for res in results:
         x, v = np.asarray(res.states[..., 0]), np.asarray(res.states[..., 1])
         w = np.broadcast_to(np.asarray(res.weights)[:, None], x.shape)
-        xs.append(_figures.mass_range(x, w, q=q, lower=barrier))
-        vs.append(_figures.mass_range(v, w, q=q))
+        xs.append(figures.mass_range(x, w, q=q, lower=barrier))
+        vs.append(figures.mass_range(v, w, q=q))
     x_lo = barrier if barrier is not None else min(a for a, _ in xs)
     v_half = max(max(abs(a), abs(b)) for a, b in vs)
     return np.linspace(x_lo, max(b for _, b in xs), n_grid), np.linspace(-v_half, v_half, n_grid)
@@ -107,10 +107,10 @@ def run(sf: SceneFile, out: pathlib.Path, *, progress: bool = True, log=print) -
 
 
 def _figures_of(sf: SceneFile, results, arrays, out: pathlib.Path) -> list[str]:
-    plt = _figures.pyplot()
+    plt = figures.pyplot()
     scene, stem = sf.scene, sf.path.stem
     model = scene.model
-    title = _figures.scene_title(model.alpha, model.gamma, model.r, scene.noise.D)
+    title = figures.scene_title(model.alpha, model.gamma, model.r, scene.noise.D)
     names = []
     for var in ("x", "v"):
         if var not in sf.outputs.densities:
@@ -121,13 +121,13 @@ def _figures_of(sf: SceneFile, results, arrays, out: pathlib.Path) -> list[str]:
             curves = [
                 (
                     name,
-                    f"{_figures.NAME[name]} ({res.n_paths} paths)",
+                    f"{figures.NAME[name]} ({res.n_paths} paths)",
                     arrays[f"{name}_pdf_{var}"][i],
                     arrays[f"{name}_stderr_{var}"][i] if name == "monte_carlo" else None,
                 )
                 for name, res in results.items()
             ]
-            _figures.marginal(ax, g, curves, var)
+            figures.marginal(ax, g, curves, var)
             ax.set_title(f"$t = {t:g}$ s")
         axes[0, 0].legend()
         fig.suptitle(title)
@@ -137,10 +137,10 @@ def _figures_of(sf: SceneFile, results, arrays, out: pathlib.Path) -> list[str]:
         plt.close(fig)
     if "joint" in sf.outputs.densities:
         t = scene.save_at[-1]
-        panels = [(f"{_figures.NAME[n]}, $t = {t:g}$ s", arrays[f"{n}_joint"][-1]) for n in results]
+        panels = [(f"{figures.NAME[n]}, $t = {t:g}$ s", arrays[f"{n}_joint"][-1]) for n in results]
         fig, axes = plt.subplots(1, len(panels), figsize=(3.6 * len(panels) + 0.8, 3.2), layout="constrained")
         axes = np.atleast_1d(axes)
-        _figures.joint(fig, axes, arrays["x_grid_joint"], arrays["v_grid_joint"], panels)
+        figures.joint(fig, axes, arrays["x_grid_joint"], arrays["v_grid_joint"], panels)
         fig.suptitle(title)
         names.append(f"{stem}_joint.png")
         fig.savefig(out / names[-1], dpi=150)

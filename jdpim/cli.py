@@ -187,7 +187,7 @@ def run(args) -> dict:
                     )
     for k, v in dist.items():
         print(f"  {k}: {v:.4f}")
-    figures = _figures(scene, dp, mc, ref, xg, vg, args)
+    drawn = _figures(scene, dp, mc, ref, xg, vg, args)
     from jdpim._scenerun import versions
 
     summary = {
@@ -199,12 +199,12 @@ def run(args) -> dict:
         "versions": versions(),
         "timing": rows,
         "distances": dist,
-        "figures": figures,
+        "figures": drawn,
         "paper_table_1": PAPER_TABLE_1,
     }
     (args.out / "summary.json").write_text(json.dumps(summary, indent=2))
     (args.out / "timing.md").write_text(table + "\n")
-    print(f"wrote {', '.join(figures)}, timing.md and summary.json to {args.out}/")
+    print(f"wrote {', '.join(drawn)}, timing.md and summary.json to {args.out}/")
     return summary
 
 
@@ -238,11 +238,11 @@ def _timing_table(rows, n_steps) -> str:
 
 
 def _figures(scene, dp, mc, ref, xg, vg, args) -> list[str]:
-    from jdpim import _figures
+    from jdpim import figures
 
-    plt = _figures.pyplot()
+    plt = figures.pyplot()
     t_last = scene.save_at[-1]
-    title = _figures.scene_title(args.alpha, args.gamma, args.r, args.D)
+    title = figures.scene_title(args.alpha, args.gamma, args.r, args.D)
     names = []
     for var, g in (("x", xg), ("v", vg)):
         fig, axes = plt.subplots(1, len(scene.save_at), figsize=(3.2 * len(scene.save_at), 2.8), squeeze=False)
@@ -253,7 +253,7 @@ def _figures(scene, dp, mc, ref, xg, vg, args) -> list[str]:
             ]
             if ref is not None:
                 curves.append(("reference", "path integration", ref.pdf(var, g, t), None))
-            _figures.marginal(ax, g, curves, var)
+            figures.marginal(ax, g, curves, var)
             ax.set_title(f"$t = {t:g}$ s")
         axes[0, -1].legend()
         fig.suptitle(title)
@@ -270,7 +270,7 @@ def _figures(scene, dp, mc, ref, xg, vg, args) -> list[str]:
     if ref is not None:
         panels.append((f"path integration, $t = {t_last:g}$ s", np.asarray(ref.joint_pdf(xj, vj, t_last))))
     fig, axes = plt.subplots(1, len(panels), figsize=(3.7 * len(panels), 3.3), sharey=True, layout="constrained")
-    _figures.joint(fig, axes, xj, vj, panels)
+    figures.joint(fig, axes, xj, vj, panels)
     fig.suptitle(title)
     fig.savefig(args.out / "joint.png", dpi=150)
     plt.close(fig)

@@ -29,7 +29,7 @@ import time
 
 import numpy as np
 
-from . import _figures, metrics
+from . import figures, metrics
 from ._models import VibroImpactOscillator
 from ._noise import WhiteNoise
 from ._path_integration import path_integration
@@ -195,8 +195,8 @@ def reproduce(settings: Settings = QUICK, out="jdpim_out/paper", *, pdf: bool = 
         arrays[f"D{D:g}_joint_x_grid"], arrays[f"D{D:g}_joint_v_grid"] = xj, vj
         runs[D] = entry
     log("figures ...")
-    figures = _figures_2_to_4(settings, arrays, out, pdf)
-    files = figures + ["table1.csv", "table1.md", "distances.csv", "paper.npz", "paper.json"]
+    drawn = _figures_2_to_4(settings, arrays, out, pdf)
+    files = drawn + ["table1.csv", "table1.md", "distances.csv", "paper.npz", "paper.json"]
     np.savez_compressed(out / "paper.npz", **arrays)
     _csv(out / "table1.csv", table, settings)
     _csv(out / "distances.csv", distances, settings)
@@ -265,7 +265,7 @@ def _save(fig, out, stem, pdf) -> list[str]:
 
 
 def _figures_2_to_4(settings: Settings, arrays, out: pathlib.Path, pdf: bool) -> list[str]:
-    plt = _figures.pyplot()
+    plt = figures.pyplot()
     t_last = settings.save_at[-1]
     D2 = D_FIGURE_2 if D_FIGURE_2 in settings.noise_levels else settings.noise_levels[0]
     sizes = f"DPIM {settings.n_points} points, MCS {settings.n_samples} samples"
@@ -276,11 +276,11 @@ def _figures_2_to_4(settings: Settings, arrays, out: pathlib.Path, pdf: bool) ->
     for row, var in enumerate(("x", "v")):
         for col, t in enumerate(settings.save_at):
             ax = axes[row, col]
-            _figures.marginal(ax, arrays[f"D{D2:g}_{var}_grid"], _curves(arrays, f"D{D2:g}_t{t:g}_{var}"), var)
+            figures.marginal(ax, arrays[f"D{D2:g}_{var}_grid"], _curves(arrays, f"D{D2:g}_t{t:g}_{var}"), var)
             ax.set_title(f"$t = {t:g}$ s")
     axes[0, -1].legend()
     fig.suptitle(
-        f"Figure 2: {_figures.scene_title(ALPHA, GAMMA, R, D2)}; {sizes}; {band}\n"
+        f"Figure 2: {figures.scene_title(ALPHA, GAMMA, R, D2)}; {sizes}; {band}\n"
         + ("QUICK settings" if settings.name == "quick" else ""),
         fontsize=8,
     )
@@ -295,9 +295,9 @@ def _figures_2_to_4(settings: Settings, arrays, out: pathlib.Path, pdf: bool) ->
         ("path integration", arrays[f"{k}_reference"]),
     ]
     fig, axes = plt.subplots(1, 3, figsize=(10.5, 3.3), sharey=True, layout="constrained")
-    _figures.joint(fig, axes, arrays[f"D{D2:g}_joint_x_grid"], arrays[f"D{D2:g}_joint_v_grid"], panels)
+    figures.joint(fig, axes, arrays[f"D{D2:g}_joint_x_grid"], arrays[f"D{D2:g}_joint_v_grid"], panels)
     fig.suptitle(
-        f"Figure 3: joint PDF at $t = {t_last:g}$ s, {_figures.scene_title(ALPHA, GAMMA, R, D2)}"
+        f"Figure 3: joint PDF at $t = {t_last:g}$ s, {figures.scene_title(ALPHA, GAMMA, R, D2)}"
         + (" (QUICK settings)" if settings.name == "quick" else ""),
         fontsize=8,
     )
@@ -324,11 +324,11 @@ def _figures_2_to_4(settings: Settings, arrays, out: pathlib.Path, pdf: bool) ->
         g = arrays[f"D{D_max:g}_{var}_grid"]
         ax.set_xlim(g[0], g[-1])
         ax.set_ylim(bottom=0)
-        ax.set_xlabel(f"{_figures.LABEL[var]} {_figures.UNIT}")
-        ax.set_ylabel(f"$p$({_figures.LABEL[var]})")
+        ax.set_xlabel(f"{figures.LABEL[var]} {figures.UNIT}")
+        ax.set_ylabel(f"$p$({figures.LABEL[var]})")
     axes[0].legend(title="DPIM lines, MCS dots,\npath integration dashed", title_fontsize=7)
     fig.suptitle(
-        f"Figure 4: marginals at $t = {t_last:g}$ s, {_figures.scene_title(ALPHA, GAMMA, R, None)}; {sizes}"
+        f"Figure 4: marginals at $t = {t_last:g}$ s, {figures.scene_title(ALPHA, GAMMA, R, None)}; {sizes}"
         + (" (QUICK)" if settings.name == "quick" else ""),
         fontsize=8,
     )

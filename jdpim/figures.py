@@ -1,5 +1,9 @@
 """Figures for print: symbols in mathtext, dimensionless axes cut to where the mass is, round contour levels.
 
+The helpers that ``jdpim run``, scene files, ``jdpim paper`` and the notebooks draw with:
+``pyplot()``, ``marginal(ax, grid, curves, var)``, ``joint(fig, axes, x, v, panels)``, ``scene_title(...)``
+and ``mass_range(samples, weights)``.
+
 DPIM is drawn as a line, Monte Carlo as dots, references as thin dashed lines; a standard error, when
 given, is a band of plus or minus two standard errors around the curve (or error bars on the dots).
 """
