@@ -47,11 +47,22 @@ def _central(f, p0, h=1e-4):
     return np.array([float(v) for v in out])
 
 
-# Measured (61 x 121 nodes, wide extents): largest relative difference between the three over the four
-# parameters 2e-6 to 7e-5; before (GMRES(60) and Lagrange weights) reverse mode was 9-12 % off.
+def _three_ways(f, p0):
+    """``jax.grad``, ``jax.jacfwd`` and central differences of ``f`` at ``p0``."""
+    return np.asarray(jax.grad(f)(jnp.asarray(p0))), np.asarray(jax.jacfwd(f)(jnp.asarray(p0))), _central(f, p0)
+
+
+# On the default grid the same comparison is within 4e-4 in every cell of gamma x r x extents but one
+# (docs/path_integration.md, "Derivatives"); before (GMRES(60), Lagrange weights) reverse mode was 9-12 % off.
 @pytest.mark.parametrize(
     ("gamma", "r", "extent"),
-    [(0.03, 0.1, 5.0), (0.0, 0.3, None), (0.03, 0.5, 5.0), (0.03, 0.9, 5.0), (0.0, 0.98, 5.0)],
+    [
+        (0.03, 0.1, 5.0),
+        (0.03, 0.9, 5.0),
+        pytest.param(0.0, 0.3, None, marks=pytest.mark.slow),
+        pytest.param(0.03, 0.5, 5.0, marks=pytest.mark.slow),
+        pytest.param(0.0, 0.98, 5.0, marks=pytest.mark.slow),
+    ],
 )
 def test_grad_jacfwd_and_central_differences_agree(gamma, r, extent):
     with jax.enable_x64(True):
@@ -63,11 +74,7 @@ def test_grad_jacfwd_and_central_differences_agree(gamma, r, extent):
         else:
             x_max = v_max = extent
         settings = jdpim.PathIntegration(n_x=61, n_v=121, x_max=x_max, v_max=v_max, order=2 if r < 0.25 else 4)
-        f = _functional(settings)
-        p0 = np.array([0.05, gamma, r, 0.05])
-        rev = np.asarray(jax.grad(f)(jnp.asarray(p0)))
-        fwd = np.asarray(jax.jacfwd(f)(jnp.asarray(p0)))
-        fd = _central(f, p0)
+        rev, fwd, fd = _three_ways(_functional(settings), np.array([0.05, gamma, r, 0.05]))
     np.testing.assert_allclose(rev, fwd, rtol=1e-6)
     np.testing.assert_allclose(fwd, fd, rtol=1e-3)
 
@@ -75,11 +82,7 @@ def test_grad_jacfwd_and_central_differences_agree(gamma, r, extent):
 def test_transient_derivatives_agree_with_central_differences():
     with jax.enable_x64(True):
         settings = jdpim.PathIntegration(n_x=61, n_v=121, x_max=3.0, v_max=3.0, t0=0.5, tau=0.05, order=4)
-        f = _functional(settings, stationary=False)
-        p0 = np.array([0.05, 0.03, 0.9, 0.05])
-        rev = np.asarray(jax.grad(f)(jnp.asarray(p0)))
-        fwd = np.asarray(jax.jacfwd(f)(jnp.asarray(p0)))
-        fd = _central(f, p0)
+        rev, fwd, fd = _three_ways(_functional(settings, stationary=False), np.array([0.05, 0.03, 0.9, 0.05]))
     np.testing.assert_allclose(rev, fwd, rtol=1e-8)
     np.testing.assert_allclose(fwd, fd, rtol=1e-3)
 
