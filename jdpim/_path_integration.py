@@ -4,8 +4,9 @@ r"""Path integration: the transition density of a one-degree-of-freedom scene on
 the one-step operator of ``jdpim._pi_operator`` (Strang splitting: half a Gaussian diffusion step in ``v``,
 the deterministic flow by semi-Lagrangian back-tracing with the impact law, another half diffusion step)
 and renormalises after every step, reporting the defect. ``stationary=True`` finds the fixed point of the
-step by a Newton-Krylov (GMRES) solve, differentiated implicitly (``jax.lax.custom_root``: one linear
-solve per tangent or cotangent, no back-propagation through the iterations).
+step by a Newton-Krylov solve (BiCGStab, GMRES where it stagnates; checked), differentiated implicitly
+(``jax.lax.custom_root``: one checked linear solve per tangent or cotangent, no back-propagation through
+the iterations).
 """
 
 from __future__ import annotations

@@ -15,8 +15,9 @@ into half a diffusion step in ``v``, the deterministic flow over ``tau``, and an
 * **Flow** (forward semi-Lagrangian, mass-conservative). The mass of every node (density times the
   node's area) is carried to the node's image under the flow over ``tau`` (RK4 in Zhuravlev's unfolded
   coordinates ``x - b = |s|``, ``v = sign(s) u``; a crossing of ``s = 0`` inside a substep is an impact,
-  ``u -> r u`` and ``s -> r s`` for the rest of it) and deposited on the surrounding nodes with the
-  tensor-product Lagrange weights of ``order`` points per axis (the transpose of interpolation). The
+  ``u -> r u`` and ``s -> r s`` for the rest of it) and deposited on the surrounding nodes with
+  tensor-product weights (``stencil``: Catmull-Rom, or linear in x and a quadratic B-spline in v, both
+  continuously differentiable in the image, or quintic Lagrange; the transpose of interpolation). The
   weights sum to one, so mass is conserved exactly; no Jacobian or ``1/r^2`` factor is needed, because
   mass, not density, is moved. Stencils are centred and shifted inwards at the grid's edges, except at
   the barrier: images never lie beyond it, so linear stencils stay on the grid there, and higher-order
