@@ -31,10 +31,10 @@ import numpy as np
 import optax
 from scipy.stats import qmc
 
-from ._density import _kernel_matrix, bandwidth, kde
 from ._distributions import elementary_ppf
 from ._points import PointSet, _standardise, assign_probabilities
 from ._pytree import check_int, check_real
+from .results._density import _kernel_matrix, bandwidth, kde
 
 
 def _theta(distributions, u):

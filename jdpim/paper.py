@@ -32,8 +32,8 @@ import numpy as np
 from . import figures, metrics
 from ._models import VibroImpactOscillator
 from ._noise import WhiteNoise
-from ._path_integration import path_integration
 from ._scene import Scene
+from .methods._path_integration import path_integration
 
 ALPHA, GAMMA, R = 0.03, 0.03, 0.98
 D_FIGURE_2 = 0.03
@@ -109,7 +109,7 @@ def _timed(fn, log, what):
 def reproduce(settings: Settings = QUICK, out="jdpim_out/paper", *, pdf: bool = False, log=print, progress=True):
     """Run the reproduction and write its figures, tables and arrays to ``out``; returns the summary dict."""
     import jdpim
-    from jdpim._scenerun import grids, versions
+    from jdpim.cli._scenerun import grids, versions
 
     out = pathlib.Path(out)
     out.mkdir(parents=True, exist_ok=True)

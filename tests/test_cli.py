@@ -11,7 +11,7 @@ import pytest
 
 import jdpim
 from jdpim import cli
-from jdpim._scenefile import SceneFileError, load
+from jdpim.cli._scenefile import SceneFileError, load
 
 EXAMPLE = pathlib.Path(__file__).parents[1] / "examples" / "reference.toml"
 

@@ -60,7 +60,7 @@ def test_bandwidth_rules_on_gaussian(rule):
     """Equal weights, n = 10^4 standard normals: the classical constants times n^(-1/5)."""
     y = jnp.asarray(np.random.default_rng(2).normal(size=10_000))
     w = jnp.full(y.shape, 1e-4)
-    expected = {"chen": jdpim._density.CHEN_C, "silverman": 0.9, "scott": 1.06}[rule] * 10_000 ** (-0.2)
+    expected = {"chen": jdpim.results._density.CHEN_C, "silverman": 0.9, "scott": 1.06}[rule] * 10_000 ** (-0.2)
     assert float(jdpim.bandwidth(y, w, rule)) == pytest.approx(expected, rel=0.03)
 
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import jdpim
-from jdpim._pipelines import balanced_chunk, monte_carlo_inputs, run_paths, simulate
+from jdpim.methods._paths import balanced_chunk, monte_carlo_inputs, run_paths, simulate
 
 SCENE = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=2.0, dt=0.01, save_at=(1.0, 2.0))
 
@@ -31,7 +31,7 @@ _SHARDED = textwrap.dedent(
     import jax, numpy as np, jdpim
     assert jax.local_device_count() == 2, jax.devices()
     scene = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=1.0, dt=0.01, impacts=jdpim.ImpactRule(method="mirror"))
-    from jdpim._pipelines import _sharded_simulate
+    from jdpim.methods._paths import _sharded_simulate
     _sharded_simulate.cache_clear()
     two = jdpim.monte_carlo(scene, 30, seed=5, chunk_size=8)
     one = jdpim.monte_carlo(scene, 30, seed=5, chunk_size=8, devices=jax.devices()[:1])

@@ -15,10 +15,10 @@ from scipy import optimize
 
 import jdpim
 from jdpim import exact
-from jdpim._estimators import Pathwise, SensitivityWarning
 from jdpim._integrate import ImpactRule, integrate, make_batch_step
-from jdpim._sensitivity import _density as density_of
-from jdpim._sensitivity import pathwise_guard
+from jdpim.sensitivities._estimators import Pathwise, SensitivityWarning
+from jdpim.sensitivities._sensitivity import _density as density_of
+from jdpim.sensitivities._sensitivity import pathwise_guard
 
 PARAMS = ("alpha", "gamma", "r", "barrier", "D")
 T_FD = 5.0

@@ -68,7 +68,7 @@ def test_grad_jacfwd_and_central_differences_agree(gamma, r, extent):
     with jax.enable_x64(True):
         nominal = _scene(0.05, gamma, r, 0.05)
         if extent is None:  # the default extents of the nominal scene, fixed (they may not follow traced values)
-            from jdpim._path_integration import default_extents
+            from jdpim.methods._path_integration import default_extents
 
             x_max, v_max = default_extents(nominal, jdpim.PathIntegration())
         else:

@@ -67,7 +67,7 @@ def test_unsmoothed_derivative_is_that_of_the_grid_density(elastic):
 
 
 def test_the_method_choice(elastic):
-    method = jdpim._sensitivity._method
+    method = jdpim.sensitivities._sensitivity._method
     plain = {"n_points": None, "points": None, "n_samples": None, "estimator": "auto", "bandwidth": None}
     plain |= {"settings": None, "stationary": False}
     assert method("auto", **plain) == "auto"  # path integration where it applies, else Monte Carlo
@@ -113,7 +113,7 @@ def test_an_unresolved_diffusion_step_is_flagged_for_d(elastic):
     """dp/dD needs one step's diffusion to span enough velocity nodes (measured: 4 % error at 0.67 spacings)."""
     from types import SimpleNamespace
 
-    from jdpim._pi_sensitivity import _check_noise_resolution
+    from jdpim.sensitivities._path_integration import _check_noise_resolution
 
     nodes = SimpleNamespace(
         x=np.linspace(0.0, 2.0, 5, dtype=np.float32), v=np.linspace(-1.0, 1.0, 21, dtype=np.float32)
@@ -194,7 +194,7 @@ def test_short_horizons_default_to_an_earlier_finer_start():
 
 def test_short_horizons_after_the_point_start_are_flagged():
     """The linearised start at t0 moved dp/dgamma and dp/dr by 5-8 % at t = 5 (reference scene, t0 = 1)."""
-    from jdpim._pi_sensitivity import _check_start
+    from jdpim.sensitivities._path_integration import _check_start
 
     _check_start(10.0, jdpim.PathIntegration())
     _check_start(2.5, jdpim.PathIntegration(t0=0.25, tau=0.025))

@@ -6,7 +6,7 @@ import jax.numpy as jnp
 import pytest
 
 import jdpim
-from jdpim._pipelines import simulate
+from jdpim.methods._paths import simulate
 
 
 def primitives(scene, n=4):

@@ -11,8 +11,14 @@ import pytest
 
 import jdpim
 from jdpim import exact
-from jdpim._estimators import CentralDifference, LikelihoodRatio, NoiseScaling, Pathwise, SensitivityWarning
 from jdpim._integrate import ImpactRule, integrate
+from jdpim.sensitivities._estimators import (
+    CentralDifference,
+    LikelihoodRatio,
+    NoiseScaling,
+    Pathwise,
+    SensitivityWarning,
+)
 
 ALPHA, D, T, H = 0.2, 0.05, 6.0, 0.15
 XS = np.linspace(-1.2, 1.2, 25)

@@ -32,8 +32,8 @@ from .. import exact, metrics
 from .._excitation import SpectralRepresentation
 from .._models import VibroImpactOscillator
 from .._noise import WhiteNoise
-from .._path_integration import PathIntegration, path_integration
 from .._scene import Scene
+from ..methods._path_integration import PathIntegration, path_integration
 from .timing import timed
 
 ALPHA, GAMMA, R, D = 0.03, 0.03, 0.98, 0.03

@@ -21,7 +21,7 @@ import numpy as np
 
 from .. import exact
 from .._excitation import SpectralRepresentation
-from .._pipelines import dpim, monte_carlo
+from ..methods._paths import dpim, monte_carlo
 from .accuracy import ALPHA, D, elastic_scene, exact_references, pdf_error
 
 

@@ -22,12 +22,12 @@ import warnings
 import numpy as np
 
 from .. import exact
-from .._estimators import CentralDifference, LikelihoodRatio, NoiseScaling, Pathwise, SensitivityWarning
 from .._models import VibroImpactOscillator
 from .._noise import WhiteNoise
-from .._path_integration import PathIntegration
 from .._scene import Scene
-from .._sensitivity import sensitivity
+from ..methods._path_integration import PathIntegration
+from ..sensitivities._estimators import CentralDifference, LikelihoodRatio, NoiseScaling, Pathwise, SensitivityWarning
+from ..sensitivities._sensitivity import sensitivity
 
 ALPHA, D, DT, H = 0.05, 0.05, 0.02, 0.1
 XS = np.linspace(0.0, 3.0, 61)

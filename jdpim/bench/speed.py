@@ -33,7 +33,7 @@ import numpy as np
 
 from .._excitation import synthesize
 from .._integrate import ImpactRule
-from .._pipelines import _path_inputs, _simulate_chunk, dpim_inputs, monte_carlo_inputs
+from ..methods._paths import _path_inputs, _simulate_chunk, dpim_inputs, monte_carlo_inputs
 from .accuracy import ALPHA, GAMMA, D, R, grids, paper_scene
 from .timing import timed
 

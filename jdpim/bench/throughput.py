@@ -1,7 +1,7 @@
 """Throughput on the visible devices: path-steps per second of the reference scene against batch size.
 
 ``python -m jdpim.bench throughput --sizes 1000 100000 --chunk-sizes 4096 65536``: for each method, number
-of paths ``n`` and chunk size, the paths go through :func:`jdpim._pipelines.run_paths` (sharded over every
+of paths ``n`` and chunk size, the paths go through :func:`jdpim.methods._paths.run_paths` (sharded over every
 local device, streamed in blocks), exactly as ``jdpim.dpim`` / ``jdpim.monte_carlo`` run them. Protocol:
 the first call (compilation included) is timed apart, then ``repeats`` warm calls, median. Input
 preparation (point selection, keys) is outside the clock. Peak device memory is the allocator's
@@ -21,7 +21,7 @@ import time
 import jax
 import numpy as np
 
-from .._pipelines import dpim_inputs, monte_carlo_inputs, run_paths
+from ..methods._paths import dpim_inputs, monte_carlo_inputs, run_paths
 from .accuracy import paper_scene
 
 

@@ -8,7 +8,8 @@ import time
 
 import jax
 
-from .._pipelines import (
+from .._scene import Scene
+from ..methods._paths import (
     _finish,
     _sharded_simulate,
     balanced_chunk,
@@ -18,8 +19,7 @@ from .._pipelines import (
     pad_rows,
     simulate,
 )
-from .._result import Result
-from .._scene import Scene
+from ..results._samples import Result
 
 
 @dataclasses.dataclass(frozen=True)
@@ -67,7 +67,7 @@ def timed(
 ) -> tuple[Result, Timing]:
     """Run ``method`` (``"dpim"`` or ``"monte_carlo"``) with ``n`` paths under the timing protocol.
 
-    ``devices=None``: one device, the run is :func:`jdpim._pipelines.simulate` (unsharded, unstreamed) on
+    ``devices=None``: one device, the run is :func:`jdpim.methods._paths.simulate` (unsharded, unstreamed) on
     the default device. Several ``devices``: the path axis is split over them as ``dpim`` and
     ``monte_carlo`` split it (one call, unstreamed); ``Timing.devices`` records how many.
 

@@ -24,7 +24,7 @@ import warnings
 import numpy as np
 
 import jdpim
-from jdpim._pi_sensitivity import grid_density
+from jdpim.sensitivities._path_integration import grid_density
 
 N = int(sys.argv[1])
 TIMES = [float(a) for a in sys.argv[2:]] or [5.0, 20.0]

@@ -26,11 +26,11 @@ from typing import TYPE_CHECKING
 import jax
 import jax.numpy as jnp
 
-from ._models import Oscillator, VibroImpactOscillator
-from ._pytree import check_real
+from .._models import Oscillator, VibroImpactOscillator
+from .._pytree import check_real
 
 if TYPE_CHECKING:
-    from ._scene import Scene
+    from .._scene import Scene
 
 DRIFT_EXCLUDED = ("r", "barrier", "D")
 NOISE_PARAMETERS = ("D",)

@@ -1,12 +1,12 @@
 r"""Sensitivities ``dp(y, t) / d theta`` of response PDFs at any horizon: path integration, DPIM or Monte Carlo.
 
 Path integration (``method="path_integration"``, what ``"auto"`` picks for the one-degree-of-freedom scenes
-it accepts) differentiates ``jdpim.path_integration`` with ``jax.jacfwd`` (``jdpim._pi_sensitivity``): no
+it accepts) differentiates ``jdpim.path_integration`` with ``jax.jacfwd`` (``sensitivities._path_integration``): no
 sampling error. The sampling methods write
 
 .. math::  \frac{\partial p(y, t)}{\partial \theta} \approx \sum_i w_i \, c_i(y)
 
-with per-path contributions ``c_i`` from an estimator per parameter (``jdpim._estimators``): a likelihood
+with per-path contributions ``c_i`` from an estimator per parameter (``jdpim.sensitivities._estimators``): a likelihood
 ratio (Girsanov score) for drift parameters, the exact noise scaling for ``D``, central differences with
 common random numbers for ``r``, or pathwise AD through the pipeline (exact for the computed density, but
 only over short horizons when there are impacts). ``estimator="auto"`` picks the pathwise derivative for
@@ -27,8 +27,14 @@ from collections.abc import Mapping, Sequence
 import jax
 import jax.numpy as jnp
 
-from ._density import _kernel_matrix
-from ._density import bandwidth as rule_bandwidth
+from .._points import PointSet
+from .._pytree import check_real
+from .._scene import Scene
+from ..methods._path_integration import PathIntegration
+from ..methods._paths import dpim_inputs, monte_carlo_inputs, run_paths
+from ..results._density import _kernel_matrix
+from ..results._density import bandwidth as rule_bandwidth
+from ..results._samples import Result
 from ._estimators import (
     CentralDifference,
     LikelihoodRatio,
@@ -43,13 +49,7 @@ from ._estimators import (
     window_of,
     with_parameters,
 )
-from ._path_integration import PathIntegration
-from ._pi_sensitivity import nominal_run, path_integration_sensitivity
-from ._pipelines import dpim_inputs, monte_carlo_inputs, run_paths
-from ._points import PointSet
-from ._pytree import check_real
-from ._result import Result
-from ._scene import Scene
+from ._path_integration import nominal_run, path_integration_sensitivity
 
 VARIABLES = ("x", "v", "xv")
 METHODS = ("auto", "path_integration", "dpim", "monte_carlo")

@@ -1,7 +1,7 @@
 r"""Path integration: the transition density of a one-degree-of-freedom scene on a phase-space grid.
 
 ``jdpim.path_integration(scene)`` evolves the joint density ``p(x, v, t)`` of the scene's oscillator with
-the one-step operator of ``jdpim._pi_operator`` (Strang splitting: half a Gaussian diffusion step in ``v``,
+the one-step operator of ``jdpim.methods._pi_operator`` (Strang splitting: half a Gaussian diffusion step in ``v``,
 the deterministic flow by semi-Lagrangian back-tracing with the impact law, another half diffusion step)
 and renormalises after every step, reporting the defect. ``stationary=True`` finds the fixed point of the
 step by a Newton-Krylov solve (BiCGStab, GMRES where it stagnates; checked), differentiated implicitly
@@ -22,11 +22,11 @@ import jax.numpy as jnp
 import numpy as np
 from jax.scipy.sparse.linalg import bicgstab, gmres
 
-from ._grid_result import GridResult
-from ._models import AbstractOscillator, VibroImpactOscillator
+from .._models import AbstractOscillator, VibroImpactOscillator
+from .._pytree import check_int, check_real, concrete
+from .._scene import Scene
+from ..results._grid import GridResult
 from ._pi_operator import StepOperator, drift_and_diffusion, make_grid, step_operator
-from ._pytree import check_int, check_real, concrete
-from ._scene import Scene
 
 ENERGY_SPAN = 20.0  # default extents: the energy where the estimated stationary density falls by e^-20
 

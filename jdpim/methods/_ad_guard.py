@@ -17,9 +17,9 @@ import warnings
 import jax
 import numpy as np
 
-from ._estimators import SensitivityWarning
-from ._pytree import concrete
-from ._scene import Scene
+from .._pytree import concrete
+from .._scene import Scene
+from ..sensitivities._estimators import SensitivityWarning
 
 GRAZING = (
     "pathwise derivatives through a start at rest on the barrier (a grazing impact) are biased: each path's "

@@ -20,10 +20,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._density import _kernel_matrix
+from .._scene import Scene
+from ..methods._path_integration import LINEAR_BELOW_R, PathIntegration, path_integration
+from ..results._density import _kernel_matrix
 from ._estimators import SensitivityWarning, with_parameters
-from ._path_integration import LINEAR_BELOW_R, PathIntegration, path_integration
-from ._scene import Scene
 
 START_HORIZONS = 10.0  # t / t0 below which the point start's approximation shows in dp/dgamma, dp/dr (measured)
 D_RESOLUTION = 0.85  # sqrt(q tau) / dv below which dp/dD degrades (measured: 4e-2 at 0.67, 1.5e-3 at 0.89)

@@ -15,7 +15,7 @@ import math
 import jax
 import jax.numpy as jnp
 
-from ._pytree import check_grid, check_points, check_real
+from .._pytree import check_grid, check_points, check_real
 
 RULES = ("chen", "silverman", "scott")
 CHEN_C = 1.25  # constant c of Chen & Yang's rule; L1 errors vs exact solutions were lowest for c = 1-1.5 (README)

@@ -37,7 +37,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._models import AbstractOscillator, Oscillator
+from .._models import AbstractOscillator, Oscillator
 
 
 @dataclasses.dataclass(frozen=True)

@@ -7,9 +7,9 @@ from typing import Any
 import jax.numpy as jnp
 import numpy as np
 
+from .._pytree import check_grid, check_points, check_real, concrete, plain, pytree_dataclass, static_field
+from .._scene import saved_index, static_times
 from . import _density
-from ._pytree import check_grid, check_points, check_real, concrete, plain, pytree_dataclass, static_field
-from ._scene import saved_index, static_times
 
 VARIABLES = ("x", "v")
 

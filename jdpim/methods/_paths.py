@@ -17,15 +17,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._cpu import host_memory
+from .._distributions import elementary_ppf
+from .._excitation import gaussian_coefficients, random_function_coefficients, synthesize
+from .._integrate import integrate, with_random_parameters
+from .._points import PointSet, select_points
+from .._pytree import check_int, concrete
+from .._scene import Scene
+from ..results._samples import Result
 from ._ad_guard import guard
-from ._cpu import host_memory
-from ._distributions import elementary_ppf
-from ._excitation import gaussian_coefficients, random_function_coefficients, synthesize
-from ._integrate import integrate, with_random_parameters
-from ._points import PointSet, select_points
-from ._pytree import check_int, concrete
-from ._result import Result
-from ._scene import Scene
 
 MEMORY_BUDGET = 512 * 2**20  # bytes of excitation work per chunk where the device does not report its memory
 DEVICE_MEMORY_SHARE = 0.5  # share of an accelerator's memory one chunk's excitation work may take

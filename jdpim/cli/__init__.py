@@ -168,7 +168,7 @@ def run(args) -> dict:
     print(table, flush=True)
     log(PAPER_TABLE_1)
 
-    from jdpim._scenerun import grids
+    from jdpim.cli._scenerun import grids
 
     xg, vg = grids((dp, mc), 0.0, 301)
     dist = {}
@@ -188,7 +188,7 @@ def run(args) -> dict:
     for k, v in dist.items():
         print(f"  {k}: {v:.4f}")
     drawn = _figures(scene, dp, mc, ref, xg, vg, args)
-    from jdpim._scenerun import versions
+    from jdpim.cli._scenerun import versions
 
     summary = {
         "scene": {
@@ -278,7 +278,7 @@ def _figures(scene, dp, mc, ref, xg, vg, args) -> list[str]:
 
 
 def _run_scene(args) -> dict:
-    from jdpim import _scenefile, _scenerun
+    from jdpim.cli import _scenefile, _scenerun
 
     sf = _scenefile.load(args.scene_file)
     log = (lambda s: None) if args.quiet else (lambda s: print(s, flush=True))
@@ -345,7 +345,7 @@ def main(argv=None) -> int:
             )
             return 2
     from jdpim._cpu import start_devices
-    from jdpim._scenefile import SceneFileError
+    from jdpim.cli._scenefile import SceneFileError
 
     try:
         if from_program or args.cpu_devices is not None:

@@ -6,9 +6,9 @@ from typing import Any
 
 import jax.numpy as jnp
 
-from ._pi_operator import catmull_rom, lagrange
-from ._pytree import check_int, check_points, pytree_dataclass, static_field
-from ._scene import saved_index, static_times
+from .._pytree import check_int, check_points, pytree_dataclass, static_field
+from .._scene import saved_index, static_times
+from ..methods._pi_operator import catmull_rom, lagrange
 
 VARIABLES = ("x", "v")
 

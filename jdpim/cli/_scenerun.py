@@ -9,7 +9,7 @@ import time
 
 import numpy as np
 
-from . import figures
+from .. import figures
 from ._scenefile import SceneFile
 
 
