@@ -22,17 +22,23 @@ from ._points import select_points as select_points
 from ._replicates import dpim_replicates as dpim_replicates
 from ._replicates import randomised_points as randomised_points
 from ._scene import Scene as Scene
+from ._scene import parameter_names as parameter_names
+from ._scene import with_parameters as with_parameters
 from ._tuning import loo_log_likelihood as loo_log_likelihood
 from ._tuning import refine_points as refine_points
 from ._tuning import soft_voronoi_probabilities as soft_voronoi_probabilities
 from ._tuning import tune_bandwidth as tune_bandwidth
+from .methods._base import AbstractMethod as AbstractMethod
+from .methods._base import solve as solve
+from .methods._dpim import DPIM as DPIM
+from .methods._dpim import dpim as dpim
+from .methods._monte_carlo import MonteCarlo as MonteCarlo
+from .methods._monte_carlo import monte_carlo as monte_carlo
 from .methods._path_integration import PathIntegration as PathIntegration
 from .methods._path_integration import PathIntegrationWarning as PathIntegrationWarning
 from .methods._path_integration import path_integration as path_integration
 from .methods._paths import NonFiniteWarning as NonFiniteWarning
-from .methods._paths import dpim as dpim
 from .methods._paths import dpim_points as dpim_points
-from .methods._paths import monte_carlo as monte_carlo
 from .methods._paths import simulate as simulate
 from .results._density import RULES as RULES
 from .results._density import bandwidth as bandwidth
@@ -48,9 +54,7 @@ from .sensitivities._estimators import NoiseScaling as NoiseScaling
 from .sensitivities._estimators import Pathwise as Pathwise
 from .sensitivities._estimators import SensitivityWarning as SensitivityWarning
 from .sensitivities._sensitivity import Sensitivity as Sensitivity
-from .sensitivities._sensitivity import parameter_names as parameter_names
 from .sensitivities._sensitivity import sensitivity as sensitivity
-from .sensitivities._sensitivity import with_parameters as with_parameters
 
 try:
     __version__ = _metadata.version("jdpim")

@@ -46,6 +46,11 @@ class AbstractOscillator:
         return self.barrier is not None
 
     @property
+    def coordinates(self) -> tuple[str, ...]:
+        """Names of the state's entries, in order: displacement ``"x"`` and velocity ``"v"``."""
+        return ("x", "v")
+
+    @property
     def may_be_stiff(self) -> bool:
         """Whether the model has terms that can make explicit RK4 unstable (then sub-stepping is traced)."""
         return True

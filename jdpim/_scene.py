@@ -13,10 +13,11 @@ import numpy as np
 from ._distributions import ANGLE, Normal, Uniform
 from ._excitation import SpectralGrid, SpectralRepresentation
 from ._integrate import ImpactRule, Substeps
-from ._models import AbstractOscillator, n_sources_of
+from ._models import AbstractOscillator, Oscillator, n_sources_of
 from ._noise import WhiteNoise
 from ._pytree import check_real, concrete, pytree_dataclass, static_field
 
+NOISE_PARAMETERS = ("D",)  # parameters of the excitation, beside the model's
 _GRID_TOL = 1e-6  # relative tolerance (in steps) for times that must lie on the time grid
 
 
@@ -163,6 +164,11 @@ class Scene:
         """A copy with fields replaced (``scene.replace(model=scene.model.replace(alpha=0.05))``)."""
         return dataclasses.replace(self, **changes)
 
+    def initial_state(self) -> tuple:
+        """``(x0, v0)``: the start of every path; ``x0=None`` means the barrier (0 without one)."""
+        x0 = self.x0 if self.x0 is not None else (self.model.barrier if self.model.has_barrier else 0.0)
+        return x0, self.v0
+
     def time_index(self, t: float) -> int:
         """Index of the saved time ``t`` in ``save_at`` (error if ``t`` was not saved)."""
         return saved_index(self.save_at, t)
@@ -196,3 +202,48 @@ def saved_index(save_at: Sequence[float], t: float) -> int:
     if abs(float(times[i]) - float(t)) > rel * max(1.0, abs(float(t))):
         raise ValueError(f"t={t!r} was not saved; saved times are {times.tolist()}")
     return i
+
+
+# ---- parameters by name -------------------------------------------------------------------------
+
+
+def get_parameter(model, name: str):
+    """A model parameter by name: a field, or a key of ``Oscillator.params`` (a dict)."""
+    if isinstance(model, Oscillator) and isinstance(model.params, dict) and name in model.params:
+        return model.params[name]
+    return getattr(model, name)
+
+
+def set_parameter(model, name: str, value):
+    """``model`` with the parameter ``name`` (a field or a key of ``Oscillator.params``) replaced."""
+    if isinstance(model, Oscillator) and isinstance(model.params, dict) and name in model.params:
+        return model.replace(params={**model.params, name: value})
+    return model.replace(**{name: value})
+
+
+def parameter_names(scene: Scene) -> tuple[str, ...]:
+    """Names of a scene's parameters (what ``with_parameters`` and ``jdpim.sensitivity`` accept).
+
+    The model's traced fields, the keys of a dict ``Oscillator.params``, and the noise intensity ``"D"``.
+    """
+    fields = dataclasses.fields(scene.model)
+    model = tuple(f.name for f in fields if not f.metadata.get("static", False) and f.name != "params")
+    if isinstance(scene.model, Oscillator) and isinstance(scene.model.params, dict):
+        model = model + tuple(k for k in scene.model.params if k not in model and isinstance(k, str))
+    return model + NOISE_PARAMETERS
+
+
+def with_parameters(scene: Scene, values: dict) -> Scene:
+    """``scene`` with named parameters replaced, e.g. ``{"alpha": 0.05, "D": 0.08}`` (values may be traced)."""
+    allowed = parameter_names(scene)
+    unknown = sorted(set(values) - set(allowed))
+    if unknown:
+        raise ValueError(f"unknown parameter(s) {unknown}; choose from {list(allowed)}")
+    model = scene.model
+    for name, value in values.items():
+        if name not in NOISE_PARAMETERS:
+            model = set_parameter(model, name, value)
+    scene = scene.replace(model=model)
+    if "D" in values:
+        scene = scene.replace(noise=dataclasses.replace(scene.noise, D=values["D"]))
+    return scene

@@ -90,7 +90,7 @@ def _reference(scene: Scene, x_grid, v_grid) -> dict:
         "name": "path integration (stationary)",
         "x": np.asarray(ref.pdf("x", x_grid)),
         "v": np.asarray(ref.pdf("v", v_grid)),
-        "joint": np.asarray(ref.joint_pdf(x_grid, v_grid)),
+        "joint": np.asarray(ref.joint_pdf(("x", "v"), (x_grid, v_grid))),
     }
 
 
@@ -159,7 +159,7 @@ def reproduce(settings: Settings = QUICK, out="jdpim_out/paper", *, pdf: bool = 
                 k = f"D{D:g}_t{t:g}_{var}"
                 arrays[f"{k}_dpim"] = np.asarray(dp.pdf(var, g, t))
                 arrays[f"{k}_mcs"] = np.asarray(mc.pdf(var, g, t))
-                arrays[f"{k}_mcs_stderr"] = np.asarray(mc.pdf_stderr(var, g, t))
+                arrays[f"{k}_mcs_stderr"] = np.asarray(mc.pdf_error(var, g, t))
                 if reps:
                     arrays[f"{k}_dpim_replicate_sd"] = np.std(
                         [np.asarray(r.pdf(var, g, t)) for r in reps], axis=0, ddof=1
@@ -189,8 +189,8 @@ def reproduce(settings: Settings = QUICK, out="jdpim_out/paper", *, pdf: bool = 
                 }
             )
         xj, vj = xg[::2], vg[::2]
-        arrays[f"D{D:g}_t{t_last:g}_joint_dpim"] = np.asarray(dp.joint_pdf(xj, vj, t_last))
-        arrays[f"D{D:g}_t{t_last:g}_joint_mcs"] = np.asarray(mc.joint_pdf(xj, vj, t_last))
+        arrays[f"D{D:g}_t{t_last:g}_joint_dpim"] = np.asarray(dp.joint_pdf(("x", "v"), (xj, vj), t_last))
+        arrays[f"D{D:g}_t{t_last:g}_joint_mcs"] = np.asarray(mc.joint_pdf(("x", "v"), (xj, vj), t_last))
         arrays[f"D{D:g}_t{t_last:g}_joint_reference"] = _reference(sc, xj, vj)["joint"]
         arrays[f"D{D:g}_joint_x_grid"], arrays[f"D{D:g}_joint_v_grid"] = xj, vj
         runs[D] = entry

@@ -25,6 +25,7 @@ from .. import exact
 from .._models import VibroImpactOscillator
 from .._noise import WhiteNoise
 from .._scene import Scene
+from ..methods._monte_carlo import MonteCarlo
 from ..methods._path_integration import PathIntegration
 from ..sensitivities._estimators import CentralDifference, LikelihoodRatio, NoiseScaling, Pathwise, SensitivityWarning
 from ..sensitivities._sensitivity import sensitivity
@@ -59,10 +60,10 @@ def _reference(name: str, t: float) -> np.ndarray:
 def _row(t, name, estimator, n, repeats):
     scene = Scene(VibroImpactOscillator(alpha=ALPHA, gamma=None, r=1.0), noise=WhiteNoise(D=D), t_end=t, dt=DT)
     if isinstance(estimator, PathIntegration):
-        kwargs = {"method": "path_integration", "settings": estimator}
+        kwargs = {"method": estimator}
         label = f"PathIntegration {estimator.n_x}x{estimator.n_v}, tau {estimator.tau:g}"
     else:
-        kwargs = {"method": "monte_carlo", "n_samples": n, "estimator": estimator}
+        kwargs = {"method": MonteCarlo(n_samples=n), "estimator": estimator}
         label = type(estimator).__name__
 
     def call():

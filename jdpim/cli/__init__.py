@@ -248,7 +248,7 @@ def _figures(scene, dp, mc, ref, xg, vg, args) -> list[str]:
         fig, axes = plt.subplots(1, len(scene.save_at), figsize=(3.2 * len(scene.save_at), 2.8), squeeze=False)
         for ax, t in zip(axes[0], scene.save_at, strict=True):
             curves = [
-                ("monte_carlo", f"MCS ({mc.n_paths})", mc.pdf(var, g, t), mc.pdf_stderr(var, g, t)),
+                ("monte_carlo", f"MCS ({mc.n_paths})", mc.pdf(var, g, t), mc.pdf_error(var, g, t)),
                 ("dpim", f"DPIM ({dp.n_paths})", dp.pdf(var, g, t), None),
             ]
             if ref is not None:
@@ -264,11 +264,13 @@ def _figures(scene, dp, mc, ref, xg, vg, args) -> list[str]:
         names.append(name)
     xj, vj = xg[::2], vg[::2]
     panels = [
-        (f"DPIM, $t = {t_last:g}$ s", np.asarray(dp.joint_pdf(xj, vj, t_last))),
-        (f"MCS, $t = {t_last:g}$ s", np.asarray(mc.joint_pdf(xj, vj, t_last))),
+        (f"DPIM, $t = {t_last:g}$ s", np.asarray(dp.joint_pdf(("x", "v"), (xj, vj), t_last))),
+        (f"MCS, $t = {t_last:g}$ s", np.asarray(mc.joint_pdf(("x", "v"), (xj, vj), t_last))),
     ]
     if ref is not None:
-        panels.append((f"path integration, $t = {t_last:g}$ s", np.asarray(ref.joint_pdf(xj, vj, t_last))))
+        panels.append(
+            (f"path integration, $t = {t_last:g}$ s", np.asarray(ref.joint_pdf(("x", "v"), (xj, vj), t_last)))
+        )
     fig, axes = plt.subplots(1, len(panels), figsize=(3.7 * len(panels), 3.3), sharey=True, layout="constrained")
     figures.joint(fig, axes, xj, vj, panels)
     fig.suptitle(title)

@@ -82,10 +82,12 @@ def run(sf: SceneFile, out: pathlib.Path, *, progress: bool = True, log=print) -
                 arrays[f"{name}_pdf_{var}"] = np.stack([np.asarray(res.pdf(var, g, t)) for t in scene.save_at])
                 if name == "monte_carlo":
                     arrays[f"{name}_stderr_{var}"] = np.stack(
-                        [np.asarray(res.pdf_stderr(var, g, t)) for t in scene.save_at]
+                        [np.asarray(res.pdf_error(var, g, t)) for t in scene.save_at]
                     )
         if "joint" in sf.outputs.densities:
-            arrays[f"{name}_joint"] = np.stack([np.asarray(res.joint_pdf(xj, vj, t)) for t in scene.save_at])
+            arrays[f"{name}_joint"] = np.stack(
+                [np.asarray(res.joint_pdf(("x", "v"), (xj, vj), t)) for t in scene.save_at]
+            )
         if sf.outputs.states:
             arrays[f"{name}_states"], arrays[f"{name}_weights"] = np.asarray(res.states), np.asarray(res.weights)
         arrays[f"{name}_nonfinite"] = np.asarray(res.n_nonfinite())

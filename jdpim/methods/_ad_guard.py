@@ -34,13 +34,9 @@ def starts_grazing(scene: Scene) -> bool:
     model = scene.model
     if not model.has_barrier or any(name in ("x0", "v0") for name, _ in scene.random):
         return False
-    v0 = concrete(scene.v0)
-    if v0 is None or np.any(v0 != 0):
-        return False
-    if scene.x0 is None:
-        return True
-    x0, b = concrete(scene.x0), concrete(model.barrier)
-    return x0 is not None and b is not None and bool(np.all(x0 == b))
+    x0, v0 = (concrete(z) for z in scene.initial_state())
+    b = concrete(model.barrier)
+    return x0 is not None and v0 is not None and b is not None and bool(np.all(v0 == 0) and np.all(x0 == b))
 
 
 def guard(scene: Scene) -> Scene:

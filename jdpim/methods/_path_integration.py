@@ -26,6 +26,7 @@ from .._models import AbstractOscillator, VibroImpactOscillator
 from .._pytree import check_int, check_real, concrete
 from .._scene import Scene
 from ..results._grid import GridResult
+from ._base import AbstractMethod, solve
 from ._pi_operator import StepOperator, drift_and_diffusion, make_grid, step_operator
 
 ENERGY_SPAN = 20.0  # default extents: the energy where the estimated stationary density falls by e^-20
@@ -41,8 +42,18 @@ class PathIntegrationWarning(RuntimeWarning):
 
 
 @dataclasses.dataclass(frozen=True)
-class PathIntegration:
-    r"""Numerical settings of ``jdpim.path_integration`` (the physics stays in the ``Scene``).
+class PathIntegration(AbstractMethod):
+    r"""Path integration on a phase-space grid (settings; run it with ``jdpim.solve(scene, PathIntegration(...))``).
+
+    Solves the Fokker-Planck equation of a one-degree-of-freedom scene ``x'' + g(x) + f(x, x') = h(x, x') . xi(t)``
+    on ``x >= barrier`` with the impact law ``x'_+ = -r x'_-`` (white noise ``E[xi xi^T] = 2 D delta``,
+    Stratonovich gains) by a mass-conservative splitting step on a grid (see ``docs/path_integration.md``),
+    with renormalisation after each step (the defect is reported as ``GridResult.mass_defect``). The scene
+    gives the physics: model, noise, start ``x0``/``v0`` (a point mass, see ``t0``), ``save_at`` (multiples of
+    ``tau`` after the start) and ``dtype``; its ``dt``, excitation and impact settings are not used, and random
+    parameters are not supported. ``solve`` returns a :class:`jdpim.GridResult`; a ``PathIntegrationWarning``
+    is issued when mass reaches the grid's edges, the renormalisation defect is large, the solve did not
+    converge, or densities are not finite.
 
     Args:
         n_x, n_v: grid nodes in ``x`` (from the barrier to ``barrier + x_max``, or ``[-x_max, x_max]``
@@ -73,11 +84,18 @@ class PathIntegration:
             the step ``tau`` where the saved times allow it, kept as ``GridResult.coarse``: then
             ``GridResult.pdf_error`` and ``l1_error`` estimate the discretisation error (about a tenth of
             the cost more; the coarse solve is not differentiated).
+        stationary: solve for the stationary density instead (``t`` may then be left out everywhere, and
+            ``GridResult.times`` is ``(inf,)``).
+        initial: a density ``initial(x, v)`` at ``t = 0`` (vectorised over node arrays of shape
+            ``(n_x, n_v)``, JAX-traceable) instead of the point-mass start; renormalised on the grid.
 
     Example:
         >>> import jdpim
-        >>> jdpim.PathIntegration(n_x=61, n_v=121).tau
-        0.05
+        >>> scene = jdpim.Scene(jdpim.VibroImpactOscillator(alpha=0.1, gamma=None, r=1.0),
+        ...                     noise=jdpim.WhiteNoise(D=0.01), t_end=2.0, dt=0.1)
+        >>> res = jdpim.solve(scene, jdpim.PathIntegration(n_x=61, n_v=121, tau=0.1))
+        >>> round(float(res.mass(t=2.0)), 4)
+        1.0
     """
 
     n_x: int = 121
@@ -95,6 +113,9 @@ class PathIntegration:
     warmup: int = 200
     leak_tol: float = 1e-5
     estimate_error: bool = False
+    stationary: bool = False
+    initial: Callable | None = None
+    name = "path_integration"
 
     def __post_init__(self):
         for name, low in (("n_x", 8), ("n_v", 8), ("substeps", 1), ("newton", 1), ("max_iter", 1), ("restart", 2)):
@@ -109,17 +130,27 @@ class PathIntegration:
         check_real("tau", self.tau, low=0.0, low_open=True)
         check_real("t0", self.t0, low=0.0, low_open=True)
         check_real("leak_tol", self.leak_tol, low=0.0)
-        if not isinstance(self.estimate_error, bool):
-            raise TypeError(f"estimate_error must be True or False, got {self.estimate_error!r}")
+        for name in ("estimate_error", "stationary"):
+            if not isinstance(getattr(self, name), bool):
+                raise TypeError(f"{name} must be True or False, got {getattr(self, name)!r}")
+        if self.initial is not None and not callable(self.initial):
+            raise TypeError(f"initial must be a callable (x, v) -> density or None, got {self.initial!r}")
         k = self.t0 / self.tau
         if abs(k - round(k)) > 1e-6 * max(1.0, k):
             raise ValueError(f"t0={self.t0!r} must be a multiple of tau={self.tau!r}")
 
+    def run(self, scene: Scene) -> GridResult:
+        return _run(scene, self)
 
-def _start(scene: Scene) -> tuple:
-    model = scene.model
-    x0 = scene.x0 if scene.x0 is not None else (model.barrier if model.has_barrier else 0.0)
-    return x0, scene.v0
+    def sensitivity(self, scene: Scene, query):
+        from ..sensitivities._path_integration import grid_sensitivity  # derivatives build on the solver
+
+        return grid_sensitivity(scene, self, query)
+
+
+jax.tree_util.register_dataclass(
+    PathIntegration, data_fields=[], meta_fields=[f.name for f in dataclasses.fields(PathIntegration)]
+)
 
 
 def _scalar(name, value) -> float:
@@ -187,7 +218,7 @@ def default_extents(scene: Scene, settings: PathIntegration) -> tuple[float, flo
     x_max = v_max / math.sqrt(stiff)
     model = scene.model
     b = _scalar("barrier", model.barrier) if model.has_barrier else 0.0
-    x0, v0 = _start(scene)
+    x0, v0 = scene.initial_state()
     x0, v0 = float(np.max(np.abs(concrete(x0) - b))), float(np.max(np.abs(concrete(v0))))
     x_max = max(x_max, 1.5 * x0 + 0.5 * x_max) if x0 else x_max
     v_max = max(v_max, 1.5 * v0 + 0.5 * v_max) if v0 else v_max
@@ -227,7 +258,7 @@ def _point_start(scene: Scene, grid, dtype, t0: float, n: int = 200):
     """Density at ``t0`` of the system linearised at the start point, folded at the barrier with the impact law."""
     model = scene.model
     a, q = drift_and_diffusion(model, scene.noise.D)
-    x0, v0 = (jnp.asarray(z, dtype) for z in _start(scene))
+    x0, v0 = (jnp.asarray(z, dtype) for z in scene.initial_state())
     a0 = a(x0, v0)
     ax, av = jax.grad(a, argnums=(0, 1))(x0, v0)
     A = jnp.stack([jnp.stack([jnp.zeros_like(ax), jnp.ones_like(ax)]), jnp.stack([ax, av])])
@@ -321,6 +352,7 @@ def _transient(scene: Scene, settings: PathIntegration, extents, initial):
     nan = jnp.full(density.shape[:1], jnp.nan, dtype)
     none = jnp.zeros(density.shape[:1], dtype)
     return _grid_result(
+        scene.model.has_barrier,
         scene.save_at,
         density,
         grid,
@@ -335,10 +367,21 @@ def _transient(scene: Scene, settings: PathIntegration, extents, initial):
     )
 
 
-def _grid_result(times, density, grid, ops: StepOperator, **fields) -> GridResult:
+def _grid_result(has_barrier: bool, times, density, grid, ops: StepOperator, **fields) -> GridResult:
     folded = ops.fold is not None
     x_weights, v_weights = grid.axis_weights(ops.order, folded)
-    return GridResult(times, density, grid.x, grid.v, x_weights, v_weights, order=ops.order, folded=folded, **fields)
+    return GridResult(
+        times,
+        density,
+        grid.x,
+        grid.v,
+        x_weights,
+        v_weights,
+        order=ops.order,
+        folded=folded,
+        has_barrier=has_barrier,
+        **fields,
+    )
 
 
 def _warn_unsolved(relres, solved) -> None:
@@ -449,6 +492,7 @@ def _stationary(scene: Scene, settings: PathIntegration, extents, law):
     virial = (kinetic + jnp.sum(weights * (X - centre) * drift * p_)) / kinetic
     one = jnp.ones((1,), dtype)
     return _grid_result(
+        scene.model.has_barrier,
         (math.inf,),
         p[None],
         grid,
@@ -466,40 +510,31 @@ def _stationary(scene: Scene, settings: PathIntegration, extents, law):
 def path_integration(
     scene: Scene,
     settings: PathIntegration | None = None,
-    stationary: bool = False,
+    stationary: bool | None = None,
     *,
     initial: Callable | None = None,
 ) -> GridResult:
-    r"""Response densities of a one-degree-of-freedom scene by path integration on a phase-space grid.
-
-    Solves the Fokker-Planck equation of ``x'' + g(x) + f(x, x') = h(x, x') . xi(t)`` on
-    ``x >= barrier`` with the impact law ``x'_+ = -r x'_-`` (white noise ``E[xi xi^T] = 2 D delta``,
-    Stratonovich gains) by a mass-conservative splitting step on a grid (see ``docs/path_integration.md``),
-    with renormalisation after each step (the defect is reported as ``mass_defect``).
-
-    Args:
-        scene: the physics: model, noise, start ``x0``/``v0`` (a point mass, see ``PathIntegration.t0``),
-            ``save_at`` (multiples of ``tau`` after the start) and ``dtype``. Random parameters are not
-            supported. The scene's ``dt``, excitation and impact settings are not used.
-        settings: ``jdpim.PathIntegration`` (default: ``PathIntegration()``).
-        stationary: solve for the stationary density instead (``t`` may then be left out everywhere).
-        initial: a density ``initial(x, v)`` at ``t = 0`` (vectorised over node arrays of shape
-            ``(n_x, n_v)``, JAX-traceable) instead of the point-mass start; renormalised on the grid.
-
-    Returns:
-        a ``jdpim.GridResult`` (``.pdf``, ``.joint_pdf``, ``.moment``, ``.mass``, ``.mass_defect``, ...).
-        A ``PathIntegrationWarning`` is issued when mass reaches the grid's edges, the renormalisation
-        defect is large, the solve did not converge, or densities are not finite.
+    r"""``jdpim.solve(scene, settings)``, with ``stationary`` and ``initial`` set where given (see PathIntegration).
 
     Example:
         >>> import jdpim
         >>> scene = jdpim.Scene(jdpim.VibroImpactOscillator(alpha=0.1, gamma=None, r=1.0),
         ...                     noise=jdpim.WhiteNoise(D=0.01), t_end=2.0, dt=0.1)
-        >>> res = jdpim.path_integration(scene, jdpim.PathIntegration(n_x=61, n_v=121, tau=0.1))
-        >>> round(float(res.mass(t=2.0)), 4)
-        1.0
+        >>> res = jdpim.path_integration(scene, jdpim.PathIntegration(n_x=61, n_v=121, tau=0.1), stationary=True)
+        >>> res.times
+        (inf,)
     """
     settings = PathIntegration() if settings is None else settings
+    if not isinstance(settings, PathIntegration):
+        raise TypeError(f"settings must be a jdpim.PathIntegration, got {settings!r}")
+    changes = {"stationary": stationary} if stationary is not None else {}
+    if initial is not None:
+        changes["initial"] = initial
+    return solve(scene, dataclasses.replace(settings, **changes))
+
+
+def _run(scene: Scene, settings: PathIntegration) -> GridResult:
+    stationary, initial = settings.stationary, settings.initial
     _validate(scene, settings, initial, stationary)
     extents = default_extents(scene, settings)
     if settings.order is None:

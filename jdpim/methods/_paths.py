@@ -8,6 +8,7 @@ streamed in blocks of chunks from a host loop, and the path axis is sharded over
 
 from __future__ import annotations
 
+import abc
 import functools
 import sys
 import time
@@ -26,6 +27,7 @@ from .._pytree import check_int, concrete
 from .._scene import Scene
 from ..results._samples import Result
 from ._ad_guard import guard
+from ._base import AbstractMethod
 
 MEMORY_BUDGET = 512 * 2**20  # bytes of excitation work per chunk where the device does not report its memory
 DEVICE_MEMORY_SHARE = 0.5  # share of an accelerator's memory one chunk's excitation work may take
@@ -114,9 +116,9 @@ def _simulate_chunk(scene: Scene, kind: str, rows, accumulate=None):
         return scene.model if r is None else with_random_parameters(scene.model, model_names, r[model_cols])
 
     n = rows.shape[0]
-    x_default = scene.x0 if scene.x0 is not None else (scene.model.barrier if scene.model.has_barrier else 0.0)
-    x0 = rand[:, names.index("x0")] if "x0" in names else jnp.full((n,), x_default, dtype)
-    v0 = rand[:, names.index("v0")] if "v0" in names else jnp.full((n,), scene.v0, dtype)
+    x_start, v_start = scene.initial_state()
+    x0 = rand[:, names.index("x0")] if "x0" in names else jnp.full((n,), x_start, dtype)
+    v0 = rand[:, names.index("v0")] if "v0" in names else jnp.full((n,), v_start, dtype)
     save_steps = scene.save_steps
     slot_of = {s: i for i, s in enumerate(save_steps)}
     n_save = len(save_steps)
@@ -306,13 +308,7 @@ def run_paths(
 
 def _finish(scene: Scene, states, weights, method: str) -> Result:
     barrier = scene.model.barrier if scene.model.has_barrier else None
-    res = Result(
-        times=scene.save_at,
-        states=states,
-        weights=weights,
-        barrier=barrier,
-        method=method,
-    )
+    res = Result(scene.save_at, states, weights, barrier, method, scene.model.coordinates)
     counts = concrete(res.n_nonfinite())
     if counts is not None and counts.any():
         warnings.warn(
@@ -368,85 +364,37 @@ def monte_carlo_inputs(scene: Scene, n_samples: int = 10_000, *, seed: int = 0, 
     return keys, jnp.full((n,), 1.0 / n, scene.float_dtype), _chunk(scene, n, chunk_size)
 
 
-def dpim(
-    scene: Scene,
-    n_points: int = 1000,
-    *,
-    points: PointSet | None = None,
-    chunk_size: int | None = None,
-    devices=None,
-    progress: bool | None = None,
-) -> Result:
-    r"""Response PDFs by the Direct Probability Integral Method.
+class SamplingMethod(AbstractMethod):
+    """A method that integrates weighted paths (DPIM points or Monte Carlo samples) in the shared core.
 
-    Representative points ``theta_q`` of the input space (two elementary variables per noise source,
-    then any random parameters) with assigned probabilities ``P_q`` are integrated as deterministic
-    trajectories; densities are ``p(y, t) = sum_q P_q N(y; y_q(t), sigma^2)`` (``Result.pdf``).
-
-    Defaults come from the accuracy study (``docs/accuracy.md``): the scene's cutoff ``2 / dt``, the
-    Box-Muller ("rayleigh") random functions and the bandwidth constant ``c = 1.25``. With them,
-    N = 1000 gave a mean L1 error of about 0.05 on the exact r = 1 case, as MCS with 1000 samples did;
-    N = 16000 gave 0.014-0.017, which MCS needed about 30000 samples for.
-
-    Args:
-        scene: the scene.
-        n_points: number of representative points (>= 2), if ``points`` is not given.
-        points: a precomputed :class:`PointSet` matching ``scene.input_distributions()``.
-        chunk_size: most paths per chunk (each device's paths are split into equal chunks no larger), or
-            ``None`` for a memory-based default.
-        devices: devices to split the points over (``None``: every local device); the states are the
-            same whatever the devices.
-        progress: progress line on stderr (``None``: only for runs of more than one block of paths).
-
-    Returns:
-        :class:`Result` with ``weights = P_q``; ``states`` is sharded over ``devices`` (over several CPU
-        devices, gathered on the first one).
-
-    Example:
-        >>> import jdpim, numpy as np
-        >>> scene = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=2.0, dt=0.01)
-        >>> res = jdpim.dpim(scene, n_points=64)
-        >>> res.states.shape
-        (64, 1, 2)
-
-    References: Chen & Yang (2019), CMAME 357; Chen, Yang & Li (2016), Structural Safety 59.
+    Subclasses give ``inputs(scene) -> (rows, weights, chunk_size)`` and the fields ``chunk_size``,
+    ``devices`` and ``progress``.
     """
-    rows, weights, chunk_size = dpim_inputs(scene, n_points, points=points, chunk_size=chunk_size)
-    states = run_paths(scene, rows, kind="dpim", chunk_size=chunk_size, devices=devices, progress=progress)
-    return _finish(scene, states, weights, "dpim")
+
+    chunk_size: int | None
+    devices: tuple | None
+    progress: bool | None
+
+    @abc.abstractmethod
+    def inputs(self, scene: Scene) -> tuple:
+        """``(rows, weights, chunk_size)``: per-path inputs ``(N, d)``, path probabilities ``(N,)``, paths per chunk."""
+
+    def run(self, scene: Scene) -> Result:
+        rows, weights, chunk = self.inputs(scene)
+        states = run_paths(scene, rows, kind=self.name, chunk_size=chunk, devices=self.devices, progress=self.progress)
+        return _finish(scene, states, weights, self.name)
+
+    def sensitivity(self, scene: Scene, query):
+        from ..sensitivities._sensitivity import sampled_sensitivity  # the estimators build on this core
+
+        return sampled_sensitivity(scene, self, query)
 
 
-def monte_carlo(
-    scene: Scene,
-    n_samples: int = 10_000,
-    *,
-    seed: int = 0,
-    chunk_size: int | None = None,
-    devices=None,
-    progress: bool | None = None,
-) -> Result:
-    """Response PDFs by Monte Carlo simulation with Gaussian spectral coefficients (same excitation grid).
-
-    Args:
-        scene: the scene.
-        n_samples: number of sample paths (>= 2).
-        seed: PRNG seed; the same seed gives the same result whatever ``chunk_size``.
-        chunk_size: most paths per chunk (each device's paths are split into equal chunks no larger), or
-            ``None`` for a memory-based default.
-        devices: devices to split the samples over (``None``: every local device); the same seed gives
-            the same states whatever the devices.
-        progress: progress line on stderr (``None``: only for runs of more than one block of paths).
-
-    Returns:
-        :class:`Result` with equal weights ``1 / n_samples``; ``states`` is sharded over ``devices`` (over
-        several CPU devices, gathered on the first one).
-
-    Example:
-        >>> import jdpim
-        >>> scene = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=2.0, dt=0.01)
-        >>> jdpim.monte_carlo(scene, n_samples=32, seed=1).states.shape
-        (32, 1, 2)
-    """
-    rows, weights, chunk_size = monte_carlo_inputs(scene, n_samples, seed=seed, chunk_size=chunk_size)
-    states = run_paths(scene, rows, kind="monte_carlo", chunk_size=chunk_size, devices=devices, progress=progress)
-    return _finish(scene, states, weights, "monte_carlo")
+def check_run_settings(method) -> None:
+    """Check the settings every sampling method shares: ``chunk_size``, ``devices``, ``progress``."""
+    if method.chunk_size is not None:
+        check_int("chunk_size", method.chunk_size, low=1)
+    if method.devices is not None:
+        object.__setattr__(method, "devices", _devices(method.devices))
+    if method.progress is not None and not isinstance(method.progress, bool):
+        raise TypeError(f"progress must be None, True or False, got {method.progress!r}")

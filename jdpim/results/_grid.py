@@ -4,18 +4,25 @@ from __future__ import annotations
 
 from typing import Any
 
+import jax
 import jax.numpy as jnp
 
-from .._pytree import check_int, check_points, pytree_dataclass, static_field
-from .._scene import saved_index, static_times
+from .._pytree import check_int, check_points, check_real, pytree_dataclass, static_field
+from .._scene import static_times
 from ..methods._pi_operator import catmull_rom, lagrange
-
-VARIABLES = ("x", "v")
+from . import _density
+from ._base import COORDINATES, AbstractResult
+from ._samples import _pair
 
 
 @pytree_dataclass
-class GridResult:
-    r"""Joint densities ``p(x_i, v_j, t)`` on a grid, from ``jdpim.path_integration``.
+class GridResult(AbstractResult):
+    r"""Joint densities ``p(x_i, v_j, t)`` on a grid, from ``jdpim.solve(scene, jdpim.PathIntegration())``.
+
+    The interface is shared with ``jdpim.Result`` (``jdpim.results.AbstractResult``): densities of the
+    coordinates interpolate the grid density with the solver's own functions, or smooth it with the sampling
+    methods' kernel when a ``bandwidth`` is given; functions of the state are kernel densities of the nodes
+    weighted by their probabilities.
 
     Attributes:
         times: saved times, s, a tuple of floats (``(inf,)`` for a stationary solve); pytree structure, as
@@ -43,6 +50,8 @@ class GridResult:
         folded: whether the solve folded ghost nodes back at the barrier (``order > 2`` with a barrier):
             then the density's continuation beyond the barrier is its mirror image.
         stationary: whether this is a stationary density (then ``t`` may be left out).
+        has_barrier: whether ``x[0]`` is a barrier (kernel densities of ``"x"`` are then reflected there).
+        coordinates: ``("x", "v")``.
 
     Densities are zero outside the grid (and below the barrier).
     """
@@ -63,18 +72,12 @@ class GridResult:
     order: int = static_field(default=4)
     folded: bool = static_field(default=False)
     stationary: bool = static_field(default=False)
+    has_barrier: bool = static_field(default=False)
+    coordinates: tuple = static_field(default=COORDINATES)
+    method = "path_integration"
 
     def __post_init__(self):
         object.__setattr__(self, "times", static_times(self.times))
-
-    def _index(self, t) -> int:
-        if t is None:
-            if not self.stationary:
-                raise ValueError(f"t is required for a transient result (saved times: {list(self.times)})")
-            return 0
-        if self.stationary:
-            return 0
-        return saved_index(self.times, t)
 
     @property
     def saved_times(self) -> tuple[float, ...]:
@@ -85,9 +88,23 @@ class GridResult:
         return self.density[self._index(t)]
 
     def _axis(self, var: str):
-        if var not in VARIABLES:
-            raise ValueError(f"var must be one of {VARIABLES}, got {var!r}")
+        """Nodes and quadrature weights of the coordinate ``var``."""
+        if callable(self._coordinate(var)):
+            raise ValueError(f"{var!r} must be a coordinate name {self.coordinates} here, not a function of the state")
         return (self.x, self.x_weights) if var == "x" else (self.v, self.v_weights)
+
+    def _node_masses(self, t):
+        """Probability of every node at ``t`` (density times the quadrature weights), shape ``(n_x, n_v)``."""
+        return self.joint(t) * self.x_weights[:, None] * self.v_weights[None, :]
+
+    def _node_values(self, var):
+        """A function of the state evaluated on every node, shape ``(n_x, n_v)``."""
+        xx, vv = jnp.meshgrid(self.x, self.v, indexing="ij")
+        states = jnp.stack([xx.ravel(), vv.ravel()], axis=-1)
+        return jax.vmap(var)(states).reshape(xx.shape)
+
+    def _reflect(self, var):
+        return self.x[0] if var == "x" and self.has_barrier else None
 
     def nodal_marginal(self, var: str, t: float | None = None):
         """Marginal density of ``var`` on its grid nodes (the solver's quadrature over the other variable)."""
@@ -111,26 +128,65 @@ class GridResult:
         rows = values[start[:, None] + ghost + jnp.arange(w.shape[-1])[None, :]]  # (G, points, ...)
         return jnp.einsum("gk...,gk->g...", rows, w)
 
-    def pdf(self, var: str, grid, t: float | None = None):
-        """Marginal PDF of ``var`` (``"x"`` or ``"v"``) at ``t`` on ``grid`` (a scalar or 1-D, one point or more).
+    def pdf(self, var, grid, t: float | None = None, *, bandwidth=None, rule: str = "chen"):
+        """Marginal PDF of ``var`` at ``t`` on ``grid`` (a scalar or 1-D, one point or more); shaped like ``grid``.
 
-        Returns an array shaped like ``grid``.
+        Args:
+            var: a coordinate name (``"x"``, ``"v"``) or a function of the state.
+            grid: evaluation points, strictly increasing.
+            t: a saved time, s (may be left out for a stationary density or a single saved time).
+            bandwidth: ``None``: a coordinate's density is interpolated between the nodes with the solver's
+                functions (no smoothing). A number (> 0): the grid density smoothed with the Gaussian kernel
+                of that standard deviation (reflected at the barrier for ``"x"``), the density the sampling
+                methods estimate at that bandwidth.
+            rule: for a function of the state without ``bandwidth``: the bandwidth rule applied to the nodes
+                weighted by their probabilities (see ``jdpim.bandwidth``).
         """
         check_points("grid", grid)
+        if callable(self._coordinate(var)):
+            y, w = self._node_values(var).ravel(), self._node_masses(t).ravel()
+            sigma = _density.bandwidth(y, w, rule, dim=1) if bandwidth is None else _checked(bandwidth)
+            return _density.kde(y, w, jnp.asarray(grid, y.dtype), sigma, None)
+        if bandwidth is not None:
+            nodes, weights = self._axis(var)
+            k = _density._kernel_matrix(jnp.asarray(grid, nodes.dtype), nodes, _checked(bandwidth), self._reflect(var))
+            return jnp.reshape(k @ (weights * self.nodal_marginal(var, t)), jnp.shape(grid))
         out = self._interpolate(self.nodal_marginal(var, t), var, grid)
         return jnp.reshape(out, jnp.shape(grid))
 
-    def joint_pdf(self, x_grid, v_grid, t: float | None = None):
-        """Joint PDF at ``t``; shape ``(len(x_grid), len(v_grid))`` (a scalar grid drops its axis)."""
-        check_points("x_grid", x_grid)
-        check_points("v_grid", v_grid)
-        px = self._interpolate(self.joint(t), "x", x_grid)  # (Gx, n_v)
-        out = self._interpolate(px.T, "v", v_grid).T  # (Gx, Gv)
-        return jnp.reshape(out, jnp.shape(x_grid) + jnp.shape(v_grid))
+    def joint_pdf(self, vars, grids, t: float | None = None, *, bandwidth=None):
+        """Joint PDF of ``vars`` (``("x", "v")`` or ``("v", "x")``) at ``t``; shape ``(len(grids[0]), len(grids[1]))``.
 
-    def moment(self, var: str, order: int, t: float | None = None):
+        A scalar grid drops its axis. ``bandwidth``: ``None`` (interpolated) or a pair of kernel standard
+        deviations (the grid density smoothed, as in :meth:`pdf`).
+        """
+        (va, vb), (ga, gb) = _pair("vars", vars), _pair("grids", grids)
+        if sorted(map(str, (va, vb))) != ["v", "x"]:
+            raise ValueError(f"vars of a grid result's joint density must be ('x', 'v') or ('v', 'x'), got {vars!r}")
+        for name, g in (("grids[0]", ga), ("grids[1]", gb)):
+            check_points(name, g)
+        if va == "v":
+            out = self.joint_pdf(("x", "v"), (gb, ga), t, bandwidth=None if bandwidth is None else bandwidth[::-1])
+            return jnp.swapaxes(out, 0, -1) if jnp.ndim(out) == 2 else out
+        if bandwidth is not None:
+            if len(bandwidth) != 2:
+                raise ValueError(f"bandwidth must be None or a pair (sigma_x, sigma_v), got {bandwidth!r}")
+            dtype = self.x.dtype
+            kx = _density._kernel_matrix(
+                jnp.atleast_1d(jnp.asarray(ga, dtype)), self.x, _checked(bandwidth[0]), self._reflect("x")
+            )
+            kv = _density._kernel_matrix(jnp.atleast_1d(jnp.asarray(gb, dtype)), self.v, _checked(bandwidth[1]), None)
+            out = kx @ self._node_masses(t) @ kv.T
+        else:
+            px = self._interpolate(self.joint(t), "x", ga)  # (Gx, n_v)
+            out = self._interpolate(px.T, "v", gb).T  # (Gx, Gv)
+        return jnp.reshape(out, jnp.shape(ga) + jnp.shape(gb))
+
+    def moment(self, var, order: int, t: float | None = None):
         """Raw moment ``E[var^order]`` at ``t`` (the solver's quadrature on the nodes)."""
         check_int("order", order, low=0)
+        if callable(self._coordinate(var)):
+            return jnp.sum(self._node_masses(t) * self._node_values(var) ** order)
         nodes, weights = self._axis(var)
         return jnp.sum(weights * self.nodal_marginal(var, t) * nodes**order)
 
@@ -139,7 +195,8 @@ class GridResult:
         return jnp.sum(self.x_weights * self.nodal_marginal("x", t))
 
     def n_nonfinite(self):
-        """Number of non-finite nodal densities per saved time; shape ``(S,)``."""
+        """Number of non-finite values among the result's carriers of probability (here grid nodes) per saved
+        time; shape ``(S,)``. Path integration renormalises every step, so one non-finite node spoils the step."""
         return jnp.sum(~jnp.isfinite(self.density), axis=(1, 2))
 
     def _coarse(self) -> GridResult:
@@ -162,3 +219,8 @@ class GridResult:
         nodes, weights = self._axis(var)
         coarse = self._coarse().pdf(var, nodes, t)
         return jnp.sum(weights * jnp.abs(self.nodal_marginal(var, t) - coarse))
+
+
+def _checked(bandwidth):
+    check_real("bandwidth", bandwidth, low=0.0, low_open=True)
+    return bandwidth

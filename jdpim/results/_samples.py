@@ -1,21 +1,21 @@
-"""The result of a DPIM or Monte Carlo run: weighted states at the saved times, and their densities."""
+"""The result of a sampling method (DPIM or Monte Carlo): weighted states at the saved times, and their densities."""
 
 from __future__ import annotations
 
 from typing import Any
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
 from .._pytree import check_grid, check_points, check_real, concrete, plain, pytree_dataclass, static_field
-from .._scene import saved_index, static_times
+from .._scene import static_times
 from . import _density
-
-VARIABLES = ("x", "v")
+from ._base import COORDINATES, AbstractResult
 
 
 @pytree_dataclass
-class Result:
+class Result(AbstractResult):
     """Weighted response states of ``N`` paths (DPIM points or Monte Carlo samples).
 
     Attributes:
@@ -23,13 +23,16 @@ class Result:
             picks an index, so a result passed into ``jax.jit`` or ``jax.vmap`` keeps them concrete and
             every method works there (an array given here is converted; float32 values are read at their
             own precision, so ``0.2`` stored in float32 is ``0.2``).
-        states: ``(x, v)`` per path and saved time, shape ``(N, S, 2)`` (path axis leading).
+        states: the state of every path at every saved time, shape ``(N, S, n_state)`` (path axis leading;
+            ``n_state = 2``, ``(x, v)``, for one degree of freedom).
         weights: probability of each path, shape ``(N,)``, summing to 1.
         barrier: barrier position (the displacement kernel is reflected there), or ``None``.
         method: ``"dpim"`` or ``"monte_carlo"``.
+        coordinates: names of the state's entries, ``("x", "v")`` for one degree of freedom.
 
     Results are pytrees (leaves: ``states``, ``weights``, ``barrier``): they pass through ``jax.jit`` and
-    ``jax.vmap`` as arguments and outputs.
+    ``jax.vmap`` as arguments and outputs. The interface is shared with ``jdpim.GridResult``
+    (``jdpim.results.AbstractResult``).
     """
 
     times: tuple = static_field()
@@ -37,22 +40,25 @@ class Result:
     weights: Any = None
     barrier: Any = None
     method: str = static_field(default="dpim")
+    coordinates: tuple = static_field(default=COORDINATES)
 
     def __post_init__(self):
         object.__setattr__(self, "times", static_times(self.times))
+        object.__setattr__(self, "coordinates", tuple(self.coordinates))
 
     @property
     def n_paths(self) -> int:
         return int(np.shape(self.weights)[0])
 
-    def _index(self, t) -> int:
-        return saved_index(self.times, t)
+    def samples(self, var, t: float | None = None):
+        """The values of ``var`` (a coordinate name or a function of the state) of every path at ``t``; ``(N,)``."""
+        which = self._coordinate(var)
+        at = self.states[:, self._index(t)]
+        return jax.vmap(which)(at) if callable(which) else at[:, which]
 
-    def samples(self, var: str, t: float):
-        """The values of ``var`` (``"x"`` or ``"v"``) of every path at saved time ``t``; shape ``(N,)``."""
-        if var not in VARIABLES:
-            raise ValueError(f"var must be one of {VARIABLES}, got {var!r}")
-        return self.states[:, self._index(t), VARIABLES.index(var)]
+    def _reflect(self, var):
+        """The barrier where the kernel of ``var`` is reflected: the displacement's, else ``None``."""
+        return self.barrier if var == "x" else None
 
     def n_nonfinite(self):
         """Number of paths with a non-finite state, per saved time; shape ``(S,)``."""
@@ -66,23 +72,24 @@ class Result:
         bad = ~jnp.all(jnp.isfinite(self.states), axis=-1)
         return jnp.sum(jnp.where(bad, self.weights[:, None], 0.0), axis=0)
 
-    def mass(self, t: float):
+    def mass(self, t: float | None = None):
         """Probability carried by the paths with finite states at saved time ``t`` (``1 - lost_mass``)."""
         return 1.0 - self.lost_mass()[self._index(t)]
 
-    def bandwidth(self, var: str, t: float, rule: str = "chen", *, dim: int = 1, c: float | None = None):
+    def bandwidth(self, var, t: float | None = None, rule: str = "chen", *, dim: int = 1, c: float | None = None):
         """The rule-based kernel standard deviation for ``var`` at time ``t`` (see ``jdpim.bandwidth``)."""
         return _density.bandwidth(self.samples(var, t), self.weights, rule, dim=dim, c=c)
 
-    def pdf(self, var: str, grid, t: float, *, bandwidth=None, rule: str = "chen"):
-        r"""Marginal PDF of ``var`` (``"x"`` or ``"v"``) at saved time ``t`` on ``grid``.
+    def pdf(self, var, grid, t: float | None = None, *, bandwidth=None, rule: str = "chen"):
+        r"""Marginal PDF of ``var`` at saved time ``t`` on ``grid``.
 
         ``p(y) = sum_q P_q N(y; y_q, sigma^2)``, reflected at the barrier for ``"x"``.
 
         Args:
-            var: ``"x"`` (displacement) or ``"v"`` (velocity).
+            var: a coordinate name (``"x"``: displacement, ``"v"``: velocity) or a function of the state
+                (its kernel is not reflected).
             grid: evaluation points: a scalar or 1-D (one point or more), strictly increasing.
-            t: a saved time, s.
+            t: a saved time, s (may be left out when the result holds one).
             bandwidth: kernel standard deviation (> 0), or ``None`` to use ``rule``.
             rule: bandwidth rule, one of ``"chen"``, ``"silverman"``, ``"scott"``.
 
@@ -93,17 +100,17 @@ class Result:
         (``tests/test_cli.py`` checks it against central differences)::
 
             pts = jdpim.dpim_points(scene, 64)
-            f = lambda D: jdpim.dpim(scene.replace(noise=jdpim.WhiteNoise(D=D)), points=pts).pdf(
+            f = lambda D: jdpim.solve(scene.replace(noise=jdpim.WhiteNoise(D=D)), jdpim.DPIM(points=pts)).pdf(
                 "x", jnp.array([0.5]), t)[0]
             jax.grad(f)(0.03)
         """
         check_points("grid", grid)
         y = self.samples(var, t)
         sigma = self._sigma(bandwidth, lambda: _density.bandwidth(y, self.weights, rule, dim=1))
-        return _density.kde(y, self.weights, jnp.asarray(grid), sigma, self.barrier if var == "x" else None)
+        return _density.kde(y, self.weights, jnp.asarray(grid), sigma, self._reflect(var))
 
-    def pdf_stderr(self, var: str, grid, t: float, *, bandwidth=None, rule: str = "chen"):
-        r"""Sampling standard error of :meth:`pdf` (same arguments), Monte Carlo results only.
+    def pdf_error(self, var, grid, t: float | None = None, *, bandwidth=None, rule: str = "chen"):
+        r"""Sampling standard error of :meth:`pdf` (same arguments): Monte Carlo results only.
 
         From the per-path kernel contributions ``K_q(y)``: ``se(y)^2 = sum_q K_q(y)^2 / n^2 - p(y)^2 / n``
         up to the factor ``n / (n - 1)`` (see ``jdpim.kde_stderr``), at the same bandwidth as ``pdf``.
@@ -112,39 +119,45 @@ class Result:
         """
         if self.method != "monte_carlo":
             raise ValueError(
-                f"pdf_stderr needs independent samples (method 'monte_carlo'), got method {self.method!r}; "
-                "for DPIM use jdpim.dpim_replicates"
+                f"pdf_error of a sampling result needs independent samples (method 'monte_carlo'), got method "
+                f"{self.method!r}; for DPIM use jdpim.dpim_replicates"
             )
         check_points("grid", grid)
         y = self.samples(var, t)
         sigma = self._sigma(bandwidth, lambda: _density.bandwidth(y, self.weights, rule, dim=1))
-        return _density.kde_stderr(y, self.weights, jnp.asarray(grid), sigma, self.barrier if var == "x" else None)
+        return _density.kde_stderr(y, self.weights, jnp.asarray(grid), sigma, self._reflect(var))
 
-    def joint_pdf(self, x_grid, v_grid, t: float, *, bandwidth=None, rule: str = "chen"):
-        """Joint PDF of ``(x, v)`` at saved time ``t``; shape ``(len(x_grid), len(v_grid))``.
+    def joint_pdf(self, vars, grids, t: float | None = None, *, bandwidth=None, rule: str = "chen"):
+        """Joint PDF of two quantities at saved time ``t``; shape ``(len(grids[0]), len(grids[1]))``.
 
-        A scalar grid drops its axis.
-
-        ``bandwidth`` is ``None`` (rule-based, 2-D exponent) or a pair ``(sigma_x, sigma_v)``.
+        Args:
+            vars: a pair of coordinate names or functions of the state, e.g. ``("x", "v")``.
+            grids: a pair of grids (each a scalar or 1-D; a scalar grid drops its axis).
+            t: a saved time, s (may be left out when the result holds one).
+            bandwidth: ``None`` (rule-based, 2-D exponent) or a pair ``(sigma_1, sigma_2)``.
+            rule: bandwidth rule for ``None``.
         """
-        check_points("x_grid", x_grid)
-        check_points("v_grid", v_grid)
-        x, v = self.samples("x", t), self.samples("v", t)
+        (va, vb), (ga, gb) = _pair("vars", vars), _pair("grids", grids)
+        for name, g in (("grids[0]", ga), ("grids[1]", gb)):
+            check_points(name, g)
+        a, b = self.samples(va, t), self.samples(vb, t)
         if bandwidth is None:
-            sx = _density.bandwidth(x, self.weights, rule, dim=2)
-            sv = _density.bandwidth(v, self.weights, rule, dim=2)
+            sa = _density.bandwidth(a, self.weights, rule, dim=2)
+            sb = _density.bandwidth(b, self.weights, rule, dim=2)
         else:
             if np.ndim(bandwidth) != 1 or len(bandwidth) != 2:
-                raise ValueError(f"bandwidth must be None or a pair (sigma_x, sigma_v), got {plain(bandwidth)!r}")
-            sx, sv = (self._sigma(b, None) for b in bandwidth)
-        return _density.kde_2d(x, v, self.weights, jnp.asarray(x_grid), jnp.asarray(v_grid), sx, sv, self.barrier)
+                raise ValueError(f"bandwidth must be None or a pair (sigma_1, sigma_2), got {plain(bandwidth)!r}")
+            sa, sb = (self._sigma(s, None) for s in bandwidth)
+        if self._reflect(vb) is not None and self._reflect(va) is None:  # the reflected quantity goes first
+            return _density.kde_2d(b, a, self.weights, jnp.asarray(gb), jnp.asarray(ga), sb, sa, self._reflect(vb)).T
+        return _density.kde_2d(a, b, self.weights, jnp.asarray(ga), jnp.asarray(gb), sa, sb, self._reflect(va))
 
-    def histogram(self, var: str, edges, t: float):
+    def histogram(self, var, edges, t: float | None = None):
         """Weighted histogram density of ``var`` at time ``t`` on bin ``edges``; shape ``(len(edges) - 1,)``."""
         check_grid("edges", edges)
         return _density.histogram(self.samples(var, t), self.weights, jnp.asarray(edges))
 
-    def moment(self, var: str, order: int, t: float):
+    def moment(self, var, order: int, t: float | None = None):
         """Weighted raw moment ``E[var^order]`` at time ``t`` over the paths with finite states."""
         y = self.samples(var, t)
         ok = jnp.isfinite(y)
@@ -158,3 +171,10 @@ class Result:
         check_real("bandwidth", bandwidth, low=0.0, low_open=True)
         arr = concrete(bandwidth)
         return bandwidth if arr is None else jnp.asarray(arr)
+
+
+def _pair(name: str, value) -> tuple:
+    """``value`` as a pair (``vars`` or ``grids`` of a joint density), with a clear error otherwise."""
+    if not isinstance(value, (tuple, list)) or len(value) != 2:
+        raise ValueError(f"{name} must be a pair, e.g. ('x', 'v') and (x_grid, v_grid), got {plain(value)!r}")
+    return tuple(value)

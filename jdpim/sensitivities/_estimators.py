@@ -21,19 +21,15 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import TYPE_CHECKING
 
 import jax
 import jax.numpy as jnp
 
 from .._models import Oscillator, VibroImpactOscillator
 from .._pytree import check_real
-
-if TYPE_CHECKING:
-    from .._scene import Scene
+from .._scene import get_parameter, set_parameter
 
 DRIFT_EXCLUDED = ("r", "barrier", "D")
-NOISE_PARAMETERS = ("D",)
 
 
 class SensitivityWarning(UserWarning):
@@ -122,48 +118,6 @@ class CentralDifference:
         if lo < low:
             lo, hi = low, low + 2 * d
         return lo, hi
-
-
-# ---- parameters by name -----------------------------------------------------------------------------
-
-
-def get_parameter(model, name: str):
-    """A model parameter by name: a field, or a key of ``Oscillator.params`` (a dict)."""
-    if isinstance(model, Oscillator) and isinstance(model.params, dict) and name in model.params:
-        return model.params[name]
-    return getattr(model, name)
-
-
-def set_parameter(model, name: str, value):
-    """``model`` with the parameter ``name`` (a field or a key of ``Oscillator.params``) replaced."""
-    if isinstance(model, Oscillator) and isinstance(model.params, dict) and name in model.params:
-        return model.replace(params={**model.params, name: value})
-    return model.replace(**{name: value})
-
-
-def parameter_names(scene: Scene) -> tuple[str, ...]:
-    """Names :func:`sensitivity` accepts: the model's traced fields, keys of a dict ``Oscillator.params``, ``"D"``."""
-    fields = dataclasses.fields(scene.model)
-    model = tuple(f.name for f in fields if not f.metadata.get("static", False) and f.name != "params")
-    if isinstance(scene.model, Oscillator) and isinstance(scene.model.params, dict):
-        model = model + tuple(k for k in scene.model.params if k not in model and isinstance(k, str))
-    return model + NOISE_PARAMETERS
-
-
-def with_parameters(scene: Scene, values: dict) -> Scene:
-    """``scene`` with named parameters replaced, e.g. ``{"alpha": 0.05, "D": 0.08}`` (values may be traced)."""
-    allowed = parameter_names(scene)
-    unknown = sorted(set(values) - set(allowed))
-    if unknown:
-        raise ValueError(f"unknown parameter(s) {unknown}; choose from {list(allowed)}")
-    model = scene.model
-    for name, value in values.items():
-        if name not in NOISE_PARAMETERS:
-            model = set_parameter(model, name, value)
-    scene = scene.replace(model=model)
-    if "D" in values:
-        scene = scene.replace(noise=dataclasses.replace(scene.noise, D=values["D"]))
-    return scene
 
 
 def drift_derivative(model, name: str, x, v):

@@ -20,10 +20,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._scene import Scene
-from ..methods._path_integration import LINEAR_BELOW_R, PathIntegration, path_integration
+from .._scene import Scene, with_parameters
+from ..methods._base import solve
+from ..methods._path_integration import LINEAR_BELOW_R, PathIntegration
 from ..results._density import _kernel_matrix
-from ._estimators import SensitivityWarning, with_parameters
+from ._estimators import SensitivityWarning
 
 START_HORIZONS = 10.0  # t / t0 below which the point start's approximation shows in dp/dgamma, dp/dr (measured)
 D_RESOLUTION = 0.85  # sqrt(q tau) / dv below which dp/dD degrades (measured: 4e-2 at 0.67, 1.5e-3 at 0.89)
@@ -33,20 +34,17 @@ D_RESOLUTION = 0.85  # sqrt(q tau) / dv below which dp/dD degrades (measured: 4e
 SHORT_HORIZON = PathIntegration(t0=0.25, n_x=241, n_v=481, tau=0.025)
 
 
-def default_settings(t: float, stationary: bool) -> PathIntegration:
+def default_settings(t: float, stationary: bool = False) -> PathIntegration:
     """``PathIntegration()``, or :data:`SHORT_HORIZON` for a transient ``t`` within 10 default ``t0`` of the start."""
     short = not stationary and t < START_HORIZONS * PathIntegration().t0
     return SHORT_HORIZON if short else PathIntegration()
 
 
-def nominal_run(scene: Scene, settings: PathIntegration | None, t: float, stationary: bool):
+def nominal_run(scene: Scene, settings: PathIntegration, t: float):
     """``(scene saving only t, settings with the nominal grid's extents and order, nominal GridResult)``."""
-    settings = default_settings(t, stationary) if settings is None else settings
-    if not isinstance(settings, PathIntegration):
-        raise TypeError(f"settings must be a jdpim.PathIntegration, got {settings!r}")
-    if not stationary:
+    if not settings.stationary:
         scene = scene.replace(save_at=(t,))
-    nominal = path_integration(scene, settings, stationary)
+    nominal = solve(scene, settings)
     x, v = np.asarray(nominal.x, float), np.asarray(nominal.v, float)
     order = settings.order
     if order is None:  # under jacfwd a traced r cannot choose the weights: choose them from the nominal r
@@ -56,13 +54,26 @@ def nominal_run(scene: Scene, settings: PathIntegration | None, t: float, statio
     return scene, dataclasses.replace(settings, x_max=float(x_max), v_max=float(v[-1]), order=order), nominal
 
 
+def grid_sensitivity(scene: Scene, settings: PathIntegration, query, nominal=None):
+    """``(value, stderr, estimators)`` of ``jdpim.sensitivity`` by path integration (``nominal``: a nominal_run)."""
+    if not (isinstance(query.estimator, str) and query.estimator == "auto"):
+        raise ValueError(f"estimator is for the sampling methods, not path integration; got {query.estimator!r}")
+    if isinstance(query.bandwidth, str):
+        raise ValueError(f"path integration takes bandwidth=None (grid density) or a number, got {query.bandwidth!r}")
+    nominal = nominal_run(scene, settings, query.t) if nominal is None else nominal
+    bandwidth = tuple(query.bandwidth) if query.var == "xv" and query.bandwidth is not None else query.bandwidth
+    value, used = path_integration_sensitivity(nominal, query.values, query.var, query.grid, query.t, bandwidth)
+    stderr = {n: jnp.zeros_like(d) for n, d in value.items()}
+    return value, stderr, dict.fromkeys(query.wrt, used)
+
+
 def _check_start(t: float, settings: PathIntegration) -> None:
     """Warn when ``t`` is so close to the start that the linearised start density at ``t0`` shows."""
     if t < START_HORIZONS * settings.t0:
         fix = (
             "a smaller t0 on a grid that resolves its start density (see PathIntegrationWarning)"
             if settings.t0 <= SHORT_HORIZON.t0
-            else f"settings=jdpim.PathIntegration(t0=0.25, n_x=241, n_v=481, tau=0.025) (the default below "
+            else f"method=jdpim.PathIntegration(t0=0.25, n_x=241, n_v=481, tau=0.025) (the default below "
             f"t = {START_HORIZONS * PathIntegration().t0:g} s)"
         )
         warnings.warn(
@@ -91,41 +102,28 @@ def _check_noise_resolution(scene: Scene, settings: PathIntegration, res) -> Non
         )
 
 
-def _trapezoid(nodes):
-    return jnp.ones_like(nodes).at[0].set(0.5).at[-1].set(0.5) * (nodes[1] - nodes[0])
-
-
-def grid_density(res, var: str, grid, t, bandwidth, barrier):
-    """Density of ``var`` on ``grid``: interpolated between nodes (``bandwidth=None``), or the nodal density
-    smoothed with the reflected Gaussian kernel of the sampling methods (trapezoidal rule over the nodes)."""
-    t = None if res.stationary else t
-    dtype = res.density.dtype
-    if bandwidth is None:
-        return res.joint_pdf(grid[0], grid[1], t) if var == "xv" else res.pdf(var, grid, t)
+def grid_density(res, var: str, grid, t, bandwidth):
+    """Density of ``var`` (``"x"``, ``"v"`` or ``"xv"``) on ``grid``: interpolated (``bandwidth=None``) or smoothed."""
     if var == "xv":
-        kx = _kernel_matrix(jnp.asarray(grid[0], dtype), res.x, bandwidth[0], barrier)
-        kv = _kernel_matrix(jnp.asarray(grid[1], dtype), res.v, bandwidth[1], None)
-        return kx @ (res.joint(t) * _trapezoid(res.x)[:, None] * _trapezoid(res.v)[None, :]) @ kv.T
-    nodes = res.x if var == "x" else res.v
-    k = _kernel_matrix(jnp.asarray(grid, dtype), nodes, bandwidth, barrier if var == "x" else None)
-    return k @ (_trapezoid(nodes) * res.nodal_marginal(var, t))
+        return res.joint_pdf(("x", "v"), grid, t, bandwidth=bandwidth)
+    return res.pdf(var, grid, t, bandwidth=bandwidth)
 
 
-def path_integration_sensitivity(nominal, values: dict, var: str, grid, t, bandwidth, stationary):
+def path_integration_sensitivity(nominal, values: dict, var: str, grid, t, bandwidth):
     """``({name: dp/dname on grid}, settings used)`` by ``jax.jacfwd`` through ``path_integration``.
 
     ``nominal`` is what :func:`nominal_run` returns.
     """
     run_scene, fixed, res = nominal
-    if not stationary:
+    if not fixed.stationary:
         _check_start(t, fixed)
     if "D" in values:
         _check_noise_resolution(run_scene, fixed, res)
 
     def pdf_of(vals):
         s = with_parameters(run_scene, vals)
-        res = path_integration(s, fixed, stationary)
-        return grid_density(res, var, grid, t, bandwidth, s.model.barrier if s.model.has_barrier else None)
+        res = solve(s, fixed)
+        return grid_density(res, var, grid, None if fixed.stationary else t, bandwidth)
 
     derivative = jax.jacfwd(pdf_of)(values)
     bad = {n: int(jnp.sum(~jnp.isfinite(d))) for n, d in derivative.items()}

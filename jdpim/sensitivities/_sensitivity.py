@@ -1,6 +1,6 @@
 r"""Sensitivities ``dp(y, t) / d theta`` of response PDFs at any horizon: path integration, DPIM or Monte Carlo.
 
-Path integration (``method="path_integration"``, what ``"auto"`` picks for the one-degree-of-freedom scenes
+Path integration (``method=jdpim.PathIntegration()``, what ``method=None`` picks for the one-degree-of-freedom scenes
 it accepts) differentiates ``jdpim.path_integration`` with ``jax.jacfwd`` (``sensitivities._path_integration``): no
 sampling error. The sampling methods write
 
@@ -23,15 +23,16 @@ import dataclasses
 import math
 import warnings
 from collections.abc import Mapping, Sequence
+from typing import Any
 
 import jax
 import jax.numpy as jnp
 
-from .._points import PointSet
 from .._pytree import check_real
-from .._scene import Scene
-from ..methods._path_integration import PathIntegration
-from ..methods._paths import dpim_inputs, monte_carlo_inputs, run_paths
+from .._scene import Scene, get_parameter, parameter_names, with_parameters
+from ..methods._base import AbstractMethod
+from ..methods._monte_carlo import MonteCarlo
+from ..methods._paths import run_paths
 from ..results._density import _kernel_matrix
 from ..results._density import bandwidth as rule_bandwidth
 from ..results._samples import Result
@@ -43,17 +44,13 @@ from ._estimators import (
     Score,
     SensitivityWarning,
     check_likelihood_ratio,
-    get_parameter,
     noise_scaling_applies,
-    parameter_names,
     window_of,
-    with_parameters,
 )
-from ._path_integration import nominal_run, path_integration_sensitivity
+from ._path_integration import default_settings, grid_sensitivity, nominal_run
 
 VARIABLES = ("x", "v", "xv")
-METHODS = ("auto", "path_integration", "dpim", "monte_carlo")
-DEFAULT_PATHS = {"dpim": 100_000, "monte_carlo": 100_000}  # ~5 % at stationarity (docs/gradients.md)
+DEFAULT_PATHS = 100_000  # Monte Carlo paths of method=None where path integration does not apply: ~5 %
 STDERR_WARN = 0.25  # relative L2 standard error above which a result is flagged
 EXPLOSION = 1e3  # |theta dp/dtheta| / max p above which a pathwise result is flagged
 _CHUNK = 512
@@ -107,28 +104,6 @@ class Sensitivity(Mapping):
         return len(self.value)
 
 
-def _method(method, n_points, points, n_samples, estimator, bandwidth, settings, stationary) -> str:
-    """The method :func:`sensitivity` runs (``"auto"`` stays open when path integration may apply), after checks."""
-    sizes = [n for n, v in (("n_points", n_points), ("points", points), ("n_samples", n_samples)) if v is not None]
-    sampling_only = not (isinstance(estimator, str) and estimator == "auto") or isinstance(bandwidth, str)
-    if method == "auto":
-        if stationary or settings is not None:
-            method = "path_integration"
-        elif sizes or sampling_only:
-            method = "monte_carlo" if n_samples is not None or not sizes else "dpim"
-    if method == "path_integration":
-        if sizes:
-            raise ValueError(f"{sizes} are for the sampling methods; path integration takes settings=")
-        if not (isinstance(estimator, str) and estimator == "auto"):
-            raise ValueError(f"estimator is for the sampling methods, not path integration; got {estimator!r}")
-        if isinstance(bandwidth, str):
-            raise ValueError(f"path integration takes bandwidth=None (grid density) or a number, got {bandwidth!r}")
-    elif method != "auto" and (stationary or settings is not None):
-        what = "stationary=True" if stationary else "settings"
-        raise ValueError(f"{what} is for method='path_integration', not method={method!r}")
-    return method
-
-
 def _density(res: Result, var: str, grid, t, bandwidth, rule: str):
     """The PDF of ``var`` on ``grid`` with the bandwidth policy of :func:`sensitivity`."""
     dim = 2 if var == "xv" else 1
@@ -140,7 +115,7 @@ def _density(res: Result, var: str, grid, t, bandwidth, rule: str):
     else:
         sig = list(bandwidth) if var == "xv" else [bandwidth]
     if var == "xv":
-        return res.joint_pdf(grid[0], grid[1], t, bandwidth=tuple(sig))
+        return res.joint_pdf(("x", "v"), grid, t, bandwidth=tuple(sig))
     return res.pdf(var, grid, t, bandwidth=sig[0])
 
 
@@ -226,6 +201,20 @@ def _finite_weights(weights, *arrays):
     return jnp.where(ok, weights, 0.0), [jnp.where(ok.reshape((-1,) + (1,) * (a.ndim - 1)), a, 0.0) for a in arrays]
 
 
+@dataclasses.dataclass(frozen=True)
+class Query:
+    """The checked arguments of :func:`sensitivity` that a method's ``sensitivity`` answers."""
+
+    wrt: tuple
+    values: dict  # nominal parameter values
+    var: str
+    grid: Any
+    t: float
+    bandwidth: Any
+    rule: str
+    estimator: Any
+
+
 def sensitivity(
     scene: Scene,
     wrt: Sequence[str] = ("alpha", "gamma", "r"),
@@ -233,39 +222,34 @@ def sensitivity(
     grid=None,
     t: float | None = None,
     *,
-    method: str = "auto",
-    n_points: int | None = None,
-    points: PointSet | None = None,
-    n_samples: int | None = None,
-    seed: int = 0,
+    method: AbstractMethod | None = None,
     bandwidth=None,
     rule: str = "chen",
     estimator="auto",
-    chunk_size: int | None = None,
-    settings: PathIntegration | None = None,
-    stationary: bool = False,
 ) -> Sensitivity:
     r"""Derivatives ``dp(y, t) / d theta`` of the PDF on a grid, with standard errors, for each name in ``wrt``.
 
     Args:
         scene: the scene; its parameter values are the point of differentiation.
-        wrt: parameter names (see :func:`parameter_names`: ``alpha``, ``gamma``, ``r``, ``barrier``,
+        wrt: parameter names (see :func:`jdpim.parameter_names`: ``alpha``, ``gamma``, ``r``, ``barrier``,
             ``omega``, ``D`` for :class:`VibroImpactOscillator`; keys of a dict ``Oscillator.params``).
         var: ``"x"``, ``"v"`` (marginal PDFs) or ``"xv"`` (joint PDF).
         grid: evaluation grid, 1-D for ``"x"``/``"v"``, a pair ``(x_grid, v_grid)`` for ``"xv"``. Keep
             ``x`` nodes off the barrier when differentiating with respect to ``barrier``.
-        t: a saved time of the scene (default: the last one); leave it out with ``stationary=True``.
-        method: ``"auto"`` (default): ``"dpim"`` when ``n_points``/``points`` are given, ``"monte_carlo"``
-            when ``n_samples`` (or a sampling ``estimator``, or ``bandwidth="adaptive"``) is given, else
-            ``"path_integration"`` where ``jdpim.path_integration`` accepts the scene (no random parameters,
-            ``0 < r <= 1``, ``t`` its start ``PathIntegration.t0`` plus whole steps ``tau``), else
-            ``"monte_carlo"``. ``"path_integration"``: ``jax.jacfwd`` through ``jdpim.path_integration``
-            (transient from the scene's start, or its stationary density). ``"dpim"``: representative
-            points, weights ``P_q``. ``"monte_carlo"``: weights ``1/N``.
-        n_points, points: DPIM point count or point set (default ``DEFAULT_PATHS["dpim"]``, 1e5 points).
-        n_samples, seed: Monte Carlo sample count (default ``DEFAULT_PATHS["monte_carlo"]``, 1e5) and seed.
-            DPIM's points are worth about as many Monte Carlo paths: at t = 200 (r = 1, bandwidth 0.1) 1e5
-            give standard errors of about 2.5 % (drift parameters) and 6 % (D).
+        t: a saved time of the scene (default: the last one); leave it out for a stationary density.
+        method: the method whose density is differentiated, as for ``jdpim.solve``:
+
+            - ``jdpim.PathIntegration(...)``: ``jax.jacfwd`` through path integration (transient from the
+              scene's start, or with ``stationary=True`` the stationary density, by implicit differentiation
+              of its fixed point); no sampling error. The grid extents are those of the nominal parameters.
+            - ``jdpim.DPIM(...)`` (weights ``P_q``) or ``jdpim.MonteCarlo(...)`` (weights ``1/N``): per-path
+              estimators (``estimator``). DPIM's points are worth about as many Monte Carlo paths: at t = 200
+              (r = 1, bandwidth 0.1) 1e5 give standard errors of about 2.5 % (drift parameters) and 6 % (D).
+            - ``None`` (default): path integration where it accepts the scene (no random parameters,
+              ``0 < r <= 1``, ``t`` its start ``t0`` plus whole steps ``tau``), with ``PathIntegration()`` or, for
+              ``t < 10`` s, the finer, earlier start ``PathIntegration(t0=0.25, n_x=241, n_v=481, tau=0.025)``
+              (about 4x dearer); else, or when a sampling ``estimator`` or ``bandwidth="adaptive"`` is asked
+              for, ``MonteCarlo(n_samples=DEFAULT_PATHS)`` (1e5 paths: about 5 % at stationarity).
         bandwidth: ``None`` (sampling methods: the rule's value at the nominal parameters, held fixed; path
             integration: no smoothing, the derivative of the grid density interpolated to ``grid``),
             ``"adaptive"`` (pathwise only: the rule is differentiated too), or fixed kernel standard
@@ -275,13 +259,6 @@ def sensitivity(
         estimator: ``"auto"``, an estimator (:class:`Pathwise`, :class:`LikelihoodRatio`,
             :class:`NoiseScaling`, :class:`CentralDifference`) for every name, or a dict ``name -> estimator``
             (sampling methods only).
-        chunk_size: paths per chunk of the simulation (``None``: memory-based default).
-        settings: ``jdpim.PathIntegration`` grid settings (path integration only; default
-            ``PathIntegration()``, or for transient ``t < 10`` s the finer, earlier start
-            ``PathIntegration(t0=0.25, n_x=241, n_v=481, tau=0.025)``, about 4x dearer). The grid extents
-            are those of the nominal parameters, held fixed.
-        stationary: path integration only: the derivative of the stationary density (implicit
-            differentiation of its fixed point); ``t`` is then left out and ``Sensitivity.t`` is ``inf``.
 
     Returns:
         :class:`Sensitivity`: ``name -> array`` shaped like the PDF (``(G,)`` or ``(Gx, Gv)``), with
@@ -298,20 +275,19 @@ def sensitivity(
         >>> import jdpim, numpy as np
         >>> model = jdpim.VibroImpactOscillator(alpha=0.1, gamma=None, barrier=None)  # cheap to compile
         >>> scene = jdpim.Scene(model, noise=jdpim.WhiteNoise(D=0.05), t_end=2.0, dt=0.02)
-        >>> points = jdpim.dpim_points(scene, 16)
-        >>> dp = jdpim.sensitivity(scene, ("alpha",), "v", np.linspace(-1.0, 1.0, 9), points=points)
+        >>> dp = jdpim.sensitivity(scene, ("alpha",), "v", np.linspace(-1.0, 1.0, 9), method=jdpim.DPIM(16))
         >>> dp["alpha"].shape, type(dp.estimators["alpha"]).__name__
         ((9,), 'Pathwise')
     """
+    if not isinstance(scene, Scene):
+        raise TypeError(f"scene must be a jdpim.Scene, got {type(scene).__name__}")
     if var not in VARIABLES:
         raise ValueError(f"var must be one of {VARIABLES}, got {var!r}")
-    if method not in METHODS:
-        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
-    method = _method(method, n_points, points, n_samples, estimator, bandwidth, settings, stationary)
-    if method == "dpim" and n_samples is not None:
-        raise ValueError("n_samples is for method='monte_carlo'; use n_points or points with method='dpim'")
-    if method == "monte_carlo" and (n_points is not None or points is not None):
-        raise ValueError("n_points and points are for method='dpim'; use n_samples with method='monte_carlo'")
+    if method is not None and not isinstance(method, AbstractMethod):
+        raise TypeError(
+            "method must be None or a jdpim method (jdpim.PathIntegration(), jdpim.DPIM(), jdpim.MonteCarlo()), "
+            f"got {method!r}"
+        )
     if isinstance(bandwidth, str) and bandwidth != "adaptive":
         raise ValueError(f"bandwidth must be None, 'adaptive' or a number, got {bandwidth!r}")
     if bandwidth is not None and not isinstance(bandwidth, str):
@@ -324,47 +300,55 @@ def sensitivity(
         raise ValueError(f"unknown parameter(s) {bad}; choose from {list(parameter_names(scene))}")
     if grid is None:
         raise ValueError("grid is required")
-    if stationary:
+    if getattr(method, "stationary", False):
         if t is not None:
-            raise ValueError(f"t={t!r} with stationary=True: the stationary density has no time; leave t out")
+            raise ValueError(f"t={t!r} with a stationary method: the stationary density has no time; leave t out")
         t = math.inf
     else:
         t = scene.save_at[-1] if t is None else t
         t = scene.save_at[scene.time_index(t)]
     values = {name: _nominal(scene, name) for name in wrt}
-    if method in ("auto", "path_integration"):
+    query = Query(wrt, values, var, grid, t, bandwidth, rule, estimator)
+    if method is None:
+        method, answer = _auto(scene, query)
+    else:
+        answer = method.sensitivity(scene, query)
+    value, stderr, estimators = answer
+    return Sensitivity({n: value[n] for n in wrt}, {n: stderr[n] for n in wrt}, estimators, float(t), method.name)
+
+
+def _auto(scene: Scene, query: Query):
+    """``(method, answer)`` of ``method=None``: path integration where it accepts the scene, else Monte Carlo."""
+    sampling_only = not (isinstance(query.estimator, str) and query.estimator == "auto")
+    if not (sampling_only or isinstance(query.bandwidth, str)):
+        settings = default_settings(query.t, stationary=False)
         try:
-            nominal = nominal_run(scene, settings, t, stationary)
+            nominal = nominal_run(scene, settings, query.t)
         except (TypeError, ValueError):
-            if method == "path_integration":
-                raise
-            nominal = None  # path integration refuses the scene (random parameters, r = 0, t off its steps)
-        if nominal is not None:
-            pi_bandwidth = tuple(bandwidth) if var == "xv" and bandwidth is not None else bandwidth
-            value, used = path_integration_sensitivity(nominal, values, var, grid, t, pi_bandwidth, stationary)
-            stderr = {n: jnp.zeros_like(value[n]) for n in wrt}
-            return Sensitivity({n: value[n] for n in wrt}, stderr, dict.fromkeys(wrt, used), t, "path_integration")
-        method = "monte_carlo"
-    estimators = _estimators(scene, wrt, estimator)
+            pass  # path integration refuses the scene (random parameters, r = 0, t off its steps)
+        else:
+            return settings, grid_sensitivity(scene, settings, query, nominal)
+    method = MonteCarlo(n_samples=DEFAULT_PATHS)
+    return method, method.sensitivity(scene, query)
+
+
+def sampled_sensitivity(scene: Scene, method, query: Query):
+    """``(value, stderr, estimators)`` from the paths of a sampling method (DPIM or Monte Carlo)."""
+    wrt, var, grid, t, bandwidth, rule = query.wrt, query.var, query.grid, query.t, query.bandwidth, query.rule
+    estimators = _estimators(scene, wrt, query.estimator)
     if bandwidth == "adaptive" and not all(isinstance(e, Pathwise) for e in estimators.values()):
         raise ValueError("bandwidth='adaptive' needs the Pathwise estimator for every parameter")
-    if method == "dpim":
-        rows, weights, chunk = dpim_inputs(
-            scene, n_points or DEFAULT_PATHS["dpim"], points=points, chunk_size=chunk_size
-        )
-    else:
-        n = n_samples or DEFAULT_PATHS["monte_carlo"]
-        rows, weights, chunk = monte_carlo_inputs(scene, n, seed=seed, chunk_size=chunk_size)
+    rows, weights, chunk = method.inputs(scene)
+    kind = method.name
     value, stderr = {}, {}
     pathwise = [n for n in wrt if isinstance(estimators[n], Pathwise)]
     if pathwise:
-        value.update(
-            _pathwise(scene, pathwise, estimators, var, grid, t, values, bandwidth, rule, method, rows, weights, chunk)
-        )
+        args = (var, grid, t, query.values, bandwidth, rule, kind, rows, weights, chunk)
+        value.update(_pathwise(scene, pathwise, estimators, *args))
         stderr.update({n: jnp.full_like(value[n], jnp.nan) for n in pathwise})
     rest = [n for n in wrt if n not in pathwise]
     if rest:
-        v, e = _sampled(scene, rest, estimators, var, grid, t, bandwidth, rule, method, rows, weights, chunk)
+        v, e = _sampled(scene, rest, estimators, var, grid, t, bandwidth, rule, kind, rows, weights, chunk)
         value.update(v)
         stderr.update(e)
         for name in rest:
@@ -373,12 +357,12 @@ def sensitivity(
                 warnings.warn(
                     f"dp/d{name}: standard error {rel:.2g} of the value (relative L2): it falls like 1/sqrt(paths); "
                     f"5 % at stationarity takes about 1e5 paths or points for drift parameters and 3e5 for D at "
-                    "bandwidth 0.1 (n_samples / n_points), a wider bandwidth, or method='path_integration' "
+                    "bandwidth 0.1 (n_samples / n_points), a wider bandwidth, or method=jdpim.PathIntegration() "
                     "(one-degree-of-freedom scenes, no sampling error)",
                     SensitivityWarning,
-                    stacklevel=2,
+                    stacklevel=4,
                 )
-    return Sensitivity({n: value[n] for n in wrt}, {n: stderr[n] for n in wrt}, estimators, float(t), method)
+    return value, stderr, estimators
 
 
 def _pathwise(scene, names, estimators, var, grid, t, values, bandwidth, rule, method, rows, weights, chunk):

@@ -1,0 +1,61 @@
+"""The method interface and the one entry point, ``solve(scene, method)``.
+
+A method is a small frozen object of numerical settings (no physics): the scene says what is computed,
+the method how. Every method returns a result with the same interface (``jdpim.results``).
+"""
+
+from __future__ import annotations
+
+import abc
+
+from .._scene import Scene
+
+
+class AbstractMethod(abc.ABC):
+    """A way to compute response densities of a :class:`jdpim.Scene`: DPIM, Monte Carlo or path integration.
+
+    Subclasses are frozen dataclasses of numerical settings. ``run(scene)`` computes the result;
+    ``sensitivity(scene, query)`` the derivatives of its densities (called by ``jdpim.sensitivity``).
+    """
+
+    name: str  # the name results carry in ``Result.method``
+
+    @abc.abstractmethod
+    def run(self, scene: Scene):
+        """The result of this method on ``scene`` (after the checks of :func:`solve`)."""
+
+    @abc.abstractmethod
+    def sensitivity(self, scene: Scene, query):
+        """``(value, stderr, estimators)`` of ``jdpim.sensitivity`` (``query``: its checked arguments)."""
+
+
+def solve(scene: Scene, method: AbstractMethod):
+    r"""Response densities of ``scene`` by ``method``: the one entry point for every method.
+
+    Args:
+        scene: the physics (:class:`jdpim.Scene`): model, excitation, initial state, random parameters,
+            time grid and saved times.
+        method: the numerics: ``jdpim.DPIM(...)``, ``jdpim.MonteCarlo(...)`` or ``jdpim.PathIntegration(...)``.
+
+    Returns:
+        a result with the shared interface (``pdf``, ``joint_pdf``, ``moment``, ``mass``, ``n_nonfinite``,
+        ``times``, ``pdf_error``): :class:`jdpim.Result` (paths) for DPIM and Monte Carlo,
+        :class:`jdpim.GridResult` (a phase-space grid) for path integration.
+
+    Example:
+        >>> import jdpim
+        >>> scene = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=2.0, dt=0.01)
+        >>> res = jdpim.solve(scene, jdpim.MonteCarlo(n_samples=32, seed=1))
+        >>> res.states.shape, res.coordinates
+        ((32, 1, 2), ('x', 'v'))
+    """
+    if not isinstance(scene, Scene):
+        raise TypeError(f"scene must be a jdpim.Scene, got {type(scene).__name__}")
+    if not isinstance(method, AbstractMethod):
+        hint = (
+            f" (a method is an object: jdpim.DPIM(), jdpim.MonteCarlo() or jdpim.PathIntegration(), not {method!r})"
+            if isinstance(method, str)
+            else ""
+        )
+        raise TypeError(f"method must be a jdpim method, got {type(method).__name__}{hint}")
+    return method.run(scene)

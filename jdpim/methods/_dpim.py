@@ -1,0 +1,86 @@
+"""The Direct Probability Integral Method: representative points with assigned probabilities."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from .._points import PointSet
+from .._pytree import check_int, pytree_dataclass, static_field
+from .._scene import Scene
+from ..results._samples import Result
+from ._base import solve
+from ._paths import SamplingMethod, check_run_settings, dpim_inputs
+
+
+@pytree_dataclass
+class DPIM(SamplingMethod):
+    r"""The Direct Probability Integral Method (settings; run it with ``jdpim.solve(scene, DPIM(...))``).
+
+    Representative points ``theta_q`` of the input space (two elementary variables per noise source,
+    then any random parameters) with assigned probabilities ``P_q`` are integrated as deterministic
+    trajectories; densities are ``p(y, t) = sum_q P_q N(y; y_q(t), sigma^2)`` (``Result.pdf``).
+
+    Defaults come from the accuracy study (``docs/accuracy.md``): the scene's cutoff ``2 / dt``, the
+    Box-Muller ("rayleigh") random functions and the bandwidth constant ``c = 1.25``. With them, N = 1000
+    gave a mean L1 error of about 0.05 on the exact r = 1 case, as Monte Carlo with 1000 samples did;
+    N = 16000 gave 0.014-0.017, which Monte Carlo needed about 30000 samples for.
+
+    Args:
+        n_points: number of representative points (>= 2), if ``points`` is not given.
+        points: a precomputed :class:`jdpim.PointSet` matching ``scene.input_distributions()`` (a pytree
+            leaf of the method: tuned point sets pass through ``jax.jit``).
+        chunk_size: most paths per chunk (each device's paths are split into equal chunks no larger), or
+            ``None`` for a memory-based default.
+        devices: devices to split the points over (``None``: every local device); the states are the
+            same whatever the devices.
+        progress: progress line on stderr (``None``: only for runs of more than one block of paths).
+
+    ``solve`` returns a :class:`jdpim.Result` with ``weights = P_q``; its ``states`` are sharded over
+    ``devices`` (over several CPU devices, gathered on the first one).
+
+    Example:
+        >>> import jdpim
+        >>> scene = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=2.0, dt=0.01)
+        >>> jdpim.solve(scene, jdpim.DPIM(n_points=64)).states.shape
+        (64, 1, 2)
+
+    References: Chen & Yang (2019), CMAME 357; Chen, Yang & Li (2016), Structural Safety 59.
+    """
+
+    n_points: int = static_field(default=1000)
+    points: Any = None
+    chunk_size: int | None = static_field(default=None)
+    devices: tuple | None = static_field(default=None)
+    progress: bool | None = static_field(default=None)
+    name = "dpim"
+
+    def __post_init__(self):
+        if self.points is None:
+            check_int("n_points", self.n_points, low=2)
+        elif not isinstance(self.points, PointSet):
+            raise TypeError(f"points must be a jdpim.PointSet, got {type(self.points).__name__}")
+        check_run_settings(self)
+
+    def inputs(self, scene: Scene) -> tuple:
+        return dpim_inputs(scene, self.n_points, points=self.points, chunk_size=self.chunk_size)
+
+
+def dpim(
+    scene: Scene,
+    n_points: int = 1000,
+    *,
+    points: PointSet | None = None,
+    chunk_size: int | None = None,
+    devices=None,
+    progress: bool | None = None,
+) -> Result:
+    """``jdpim.solve(scene, jdpim.DPIM(n_points, ...))``: response PDFs by DPIM (see :class:`DPIM`).
+
+    Example:
+        >>> import jdpim
+        >>> scene = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=2.0, dt=0.01)
+        >>> jdpim.dpim(scene, n_points=64).states.shape
+        (64, 1, 2)
+    """
+    method = DPIM(n_points, points, chunk_size=chunk_size, devices=devices, progress=progress)
+    return solve(scene, method)
