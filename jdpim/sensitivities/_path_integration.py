@@ -23,7 +23,6 @@ import numpy as np
 from .._scene import Scene, with_parameters
 from ..methods._base import solve
 from ..methods._path_integration import LINEAR_BELOW_R, PathIntegration
-from ..results._density import _kernel_matrix
 from ._estimators import SensitivityWarning
 
 START_HORIZONS = 10.0  # t / t0 below which the point start's approximation shows in dp/dgamma, dp/dr (measured)
