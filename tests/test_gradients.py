@@ -63,7 +63,7 @@ def fd_case():
                 [
                     res.pdf("x", X_FD, T_FD, bandwidth=SIGMA_FD),
                     res.pdf("v", V_FD, T_FD, bandwidth=SIGMA_FD),
-                    res.joint_pdf(XJ, VJ, T_FD, bandwidth=(SIGMA_FD, SIGMA_FD)).ravel(),
+                    res.joint_pdf(("x", "v"), (XJ, VJ), T_FD, bandwidth=(SIGMA_FD, SIGMA_FD)).ravel(),
                 ]
             )
 
@@ -165,7 +165,9 @@ def _loss(scene, points, alpha):
 
 def _forward(scene, points, alpha):
     s = scene.replace(model=scene.model.replace(alpha=alpha))
-    dp = jdpim.sensitivity(s, ("alpha",), "v", V_TINY, points=points, bandwidth=0.2, estimator=Pathwise())["alpha"]
+    dp = jdpim.sensitivity(
+        s, ("alpha",), "v", V_TINY, bandwidth=0.2, estimator=Pathwise(), method=jdpim.DPIM(points=points)
+    )["alpha"]
     return float(jnp.sum(dp * jnp.linspace(0.0, 1.0, V_TINY.size)))
 
 
@@ -233,11 +235,17 @@ def test_bandwidth_policy():
 def test_sensitivity_rejects_bad_arguments(tiny):
     scene, points = tiny
     with pytest.raises(ValueError, match="unknown parameter"):
-        jdpim.sensitivity(scene, ("mass",), "x", V_TINY + 1.0, points=points)
+        jdpim.sensitivity(scene, ("mass",), "x", V_TINY + 1.0, method=jdpim.DPIM(points=points))
     with pytest.raises(ValueError, match="var must be"):
-        jdpim.sensitivity(scene, ("alpha",), "y", V_TINY, points=points)
+        jdpim.sensitivity(scene, ("alpha",), "y", V_TINY, method=jdpim.DPIM(points=points))
     with pytest.raises(ValueError, match="is None"):
-        jdpim.sensitivity(scene.replace(model=scene.model.replace(gamma=None)), ("gamma",), "v", V_TINY, points=points)
+        jdpim.sensitivity(
+            scene.replace(model=scene.model.replace(gamma=None)),
+            ("gamma",),
+            "v",
+            V_TINY,
+            method=jdpim.DPIM(points=points),
+        )
 
 
 def test_pathwise_guard():
@@ -258,7 +266,13 @@ def test_pathwise_beyond_its_horizon_warns(tiny):
     scene, points = tiny
     with pytest.warns(SensitivityWarning, match="beyond the Pathwise horizon"):
         dp = jdpim.sensitivity(
-            scene, ("alpha",), "v", V_TINY, points=points, bandwidth=0.2, estimator=Pathwise(horizon=1.0)
+            scene,
+            ("alpha",),
+            "v",
+            V_TINY,
+            bandwidth=0.2,
+            estimator=Pathwise(horizon=1.0),
+            method=jdpim.DPIM(points=points),
         )
     assert np.all(np.isfinite(dp["alpha"]))
 
@@ -278,7 +292,9 @@ def test_noise_derivative_against_the_exact_elastic_solution():
     points = jdpim.dpim_points(scene, 256)
     grid = np.linspace(0.02, 2.0, 100)
     sigma = float(jdpim.dpim(scene, points=points).bandwidth("x", T))
-    dp = jdpim.sensitivity(scene, ("D",), "x", grid, T, points=points, bandwidth=sigma, estimator=Pathwise())["D"]
+    dp = jdpim.sensitivity(
+        scene, ("D",), "x", grid, T, bandwidth=sigma, estimator=Pathwise(), method=jdpim.DPIM(points=points)
+    )["D"]
     dp = np.asarray(dp)
 
     def smoothed(d):

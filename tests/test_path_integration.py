@@ -29,7 +29,9 @@ def errors(res, t, t_exact):
         metrics.l1(np.asarray(res.pdf("x", XG, t)), exact.elastic_linear_pdf_x(XG, ALPHA, D, t_exact), XG),
         metrics.l1(np.asarray(res.pdf("v", VG, t)), exact.elastic_linear_pdf_v(VG, ALPHA, D, t_exact), VG),
         metrics.l1(
-            np.asarray(res.joint_pdf(XG, VG, t)), exact.elastic_linear_joint_pdf(XG, VG, ALPHA, D, t_exact), (XG, VG)
+            np.asarray(res.joint_pdf(("x", "v"), (XG, VG), t)),
+            exact.elastic_linear_joint_pdf(XG, VG, ALPHA, D, t_exact),
+            (XG, VG),
         ),
     )
 

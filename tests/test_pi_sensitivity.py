@@ -5,6 +5,8 @@ Exact reference: r = 1, no cubic damping: the folded Gaussian with the variance 
 width ``h`` adds ``h^2`` to the variance, so the derivatives of the smoothed density are closed-form.
 """
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -38,8 +40,8 @@ def test_path_integration_matches_the_exact_derivative(elastic, stationary):
     # Measured (float32, 61 x 121 nodes, tau = 0.1): relative L2 error 1.0e-3 (alpha) and 2.0e-3 (D) at t = 10,
     # 6.7e-4 and 9.9e-4 stationary: the grid's error, there is no sampling error.
     t = np.inf if stationary else T
-    kw = {"stationary": True} if stationary else {"t": T}
-    out = jdpim.sensitivity(elastic, ("alpha", "D"), "x", XS, bandwidth=H, settings=SETTINGS, **kw)
+    kw = {"method": dataclasses.replace(SETTINGS, stationary=True)} if stationary else {"t": T, "method": SETTINGS}
+    out = jdpim.sensitivity(elastic, ("alpha", "D"), "x", XS, bandwidth=H, **kw)
     assert out.method == "path_integration" and out.t == t
     for name in ("alpha", "D"):
         ref = _exact_derivative(name, t)
@@ -54,7 +56,7 @@ def test_unsmoothed_derivative_is_that_of_the_grid_density(elastic):
 
     Measured: relative L2 error 7.4e-4 (alpha) and 1.1e-3 (D) against the unsmoothed exact derivative.
     """
-    out = jdpim.sensitivity(elastic, ("alpha", "D"), "x", XS, settings=SETTINGS, stationary=True)
+    out = jdpim.sensitivity(elastic, ("alpha", "D"), "x", XS, method=dataclasses.replace(SETTINGS, stationary=True))
     e = 1e-6
     for name, (lo, hi) in {
         "alpha": (D / (ALPHA - e), D / (ALPHA + e)),
@@ -67,38 +69,28 @@ def test_unsmoothed_derivative_is_that_of_the_grid_density(elastic):
 
 
 def test_the_method_choice(elastic):
-    method = jdpim.sensitivities._sensitivity._method
-    plain = {"n_points": None, "points": None, "n_samples": None, "estimator": "auto", "bandwidth": None}
-    plain |= {"settings": None, "stationary": False}
-    assert method("auto", **plain) == "auto"  # path integration where it applies, else Monte Carlo
-    assert method("auto", **(plain | {"n_points": 256})) == "dpim"  # the README's call
-    assert method("auto", **(plain | {"n_samples": 1000})) == "monte_carlo"
-    assert method("auto", **(plain | {"estimator": jdpim.LikelihoodRatio()})) == "monte_carlo"
-    assert method("auto", **(plain | {"estimator": jdpim.Pathwise(), "n_points": 8})) == "dpim"
-    assert method("auto", **(plain | {"bandwidth": "adaptive"})) == "monte_carlo"
-    assert method("auto", **(plain | {"stationary": True})) == "path_integration"
-    assert method("auto", **(plain | {"settings": SETTINGS})) == "path_integration"
+    """method=None: path integration where it accepts the scene; Monte Carlo where a sampling estimator is asked for."""
+    out = jdpim.sensitivity(elastic, ("alpha",), "x", XS, bandwidth=H, estimator=jdpim.LikelihoodRatio())
+    assert out.method == "monte_carlo" and out.estimators["alpha"] == jdpim.LikelihoodRatio()
+    with pytest.raises(TypeError, match=r"method must be None or a jdpim method"):
+        jdpim.sensitivity(elastic, ("alpha",), "x", XS, method="path_integration")
 
 
 def test_path_integration_refusals(elastic):
-    kw = {"bandwidth": H, "settings": SETTINGS}
-    with pytest.raises(ValueError, match="stationary=True is for method='path_integration'"):
-        jdpim.sensitivity(elastic, ("alpha",), "x", XS, method="dpim", stationary=True)
-    with pytest.raises(ValueError, match=r"\['n_samples'\] are for the sampling methods"):
-        jdpim.sensitivity(elastic, ("alpha",), "x", XS, n_samples=100, **kw)
+    kw = {"bandwidth": H, "method": SETTINGS}
     with pytest.raises(ValueError, match="estimator is for the sampling methods"):
         jdpim.sensitivity(elastic, ("alpha",), "x", XS, estimator=jdpim.LikelihoodRatio(), **kw)
     with pytest.raises(ValueError, match="leave t out"):
-        jdpim.sensitivity(elastic, ("alpha",), "x", XS, T, stationary=True, **kw)
+        jdpim.sensitivity(elastic, ("alpha",), "x", XS, T, bandwidth=H, method=jdpim.PathIntegration(stationary=True))
     with pytest.raises(ValueError, match="bandwidth=None"):
-        jdpim.sensitivity(elastic, ("alpha",), "x", XS, method="path_integration", bandwidth="adaptive")
+        jdpim.sensitivity(elastic, ("alpha",), "x", XS, bandwidth="adaptive", method=jdpim.PathIntegration())
     with pytest.raises(ValueError, match=r"bandwidth must lie in \(0, inf\)"):
-        jdpim.sensitivity(elastic, ("alpha",), "x", XS, bandwidth=-0.1, settings=SETTINGS)
+        jdpim.sensitivity(elastic, ("alpha",), "x", XS, bandwidth=-0.1, method=SETTINGS)
     with pytest.raises(TypeError, match="jdpim.PathIntegration"):
-        jdpim.sensitivity(elastic, ("alpha",), "x", XS, settings={"n_x": 61})
+        jdpim.sensitivity(elastic, ("alpha",), "x", XS, method={"n_x": 61})
     random = elastic.replace(random=(("alpha", jdpim.Uniform(0.05, 0.15)),))
     with pytest.raises(ValueError, match="random parameters"):  # path integration's own refusal
-        jdpim.sensitivity(random, ("D",), "x", XS, method="path_integration", **{"bandwidth": H})
+        jdpim.sensitivity(random, ("D",), "x", XS, bandwidth=H, method=jdpim.PathIntegration())
 
 
 def test_auto_falls_back_to_monte_carlo_where_path_integration_refuses():
@@ -168,7 +160,7 @@ def test_default_call_at_stationarity_and_energy_dependent_damping():
 def test_joint_derivative_integrates_to_the_marginal(elastic):
     """The same nodal density and kernels: integrating ``dp(x, v)`` over ``v`` gives ``dp(x)``."""
     vg = np.linspace(-4.0, 4.0, 161)
-    kw = {"settings": SETTINGS, "stationary": True}
+    kw = {"method": dataclasses.replace(SETTINGS, stationary=True)}
     joint = jdpim.sensitivity(elastic, ("alpha", "D"), "xv", (XS, vg), bandwidth=(H, 0.15), **kw)
     marginal = jdpim.sensitivity(elastic, ("alpha", "D"), "x", XS, bandwidth=H, **kw)
     for name in ("alpha", "D"):

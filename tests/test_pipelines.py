@@ -45,7 +45,7 @@ def test_pdfs_integrate_to_one_and_respect_barrier(method, request, v_grid):
     assert np.all(px[xg < 0] == 0)
     assert np.trapezoid(px[xg >= 0], xg[xg >= 0]) == pytest.approx(1.0, abs=2e-3)
     assert np.trapezoid(np.asarray(res.pdf("v", v_grid, T_LATE)), v_grid) == pytest.approx(1.0, abs=2e-3)
-    joint = np.asarray(res.joint_pdf(np.linspace(0, 6, 241), v_grid[::4], T_LATE))
+    joint = np.asarray(res.joint_pdf(("x", "v"), (np.linspace(0, 6, 241), v_grid[::4]), T_LATE))
     assert np.trapezoid(np.trapezoid(joint, v_grid[::4], axis=1), np.linspace(0, 6, 241)) == pytest.approx(1, abs=5e-3)
     assert float(np.min(np.asarray(res.states)[..., 0])) >= 0.0
     assert int(res.n_nonfinite().sum()) == 0
@@ -53,7 +53,7 @@ def test_pdfs_integrate_to_one_and_respect_barrier(method, request, v_grid):
 
 def test_joint_pdf_matches_exact(elastic_dpim):
     xg, vg = np.linspace(0, 5, 101), np.linspace(-5, 5, 201)
-    p = np.asarray(elastic_dpim.joint_pdf(xg, vg, T_LATE))
+    p = np.asarray(elastic_dpim.joint_pdf(("x", "v"), (xg, vg), T_LATE))
     ref = exact.elastic_linear_joint_pdf(xg, vg, ALPHA, D_REF, T_LATE)
     assert metrics.l1(p, ref, (xg, vg)) < 0.14  # measured 0.105 (0.118 at t = 10)
 

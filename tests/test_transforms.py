@@ -40,7 +40,7 @@ def test_results_pass_through_jit_as_arguments_and_outputs(results, name):
     again = jax.jit(lambda r: r)(res)
     assert type(again) is type(res) and again.times == res.times
     np.testing.assert_allclose(np.asarray(again.pdf("x", GRID, 1.0)), np.asarray(res.pdf("x", GRID, 1.0)), rtol=1e-6)
-    assert np.asarray(res.joint_pdf(0.5, jnp.array([-0.1, 0.1]), 2.0)).shape == (2,)
+    assert np.asarray(res.joint_pdf(("x", "v"), (0.5, jnp.array([-0.1, 0.1])), 2.0)).shape == (2,)
 
 
 def test_a_batch_of_results_passes_through_vmap(scene):
@@ -58,7 +58,7 @@ def test_a_batch_of_results_passes_through_vmap(scene):
 
 def test_sensitivity_passes_through_jit(scene):
     with pytest.warns(jdpim.SensitivityWarning, match="standard error"):  # 32 points: a large sampling error
-        out = jdpim.sensitivity(scene, ("alpha",), "x", GRID, t=2.0, method="dpim", n_points=32)
+        out = jdpim.sensitivity(scene, ("alpha",), "x", GRID, t=2.0, method=jdpim.DPIM(n_points=32))
     again = jax.jit(lambda s: s)(out)
     assert isinstance(again, jdpim.Sensitivity) and again.t == out.t and again.method == out.method
     np.testing.assert_allclose(np.asarray(again["alpha"]), np.asarray(out["alpha"]))

@@ -135,14 +135,23 @@ RESULT_CALLS = {
     "grid-decreasing": (lambda r: r.pdf("v", [0.0, 1.0, 0.5], 1.0), r"grid must be strictly increasing"),
     "grid-2d": (lambda r: r.pdf("v", np.zeros((2, 2)), 1.0), r"grid must be a scalar or a non-empty 1-D array"),
     "grid-nan": (lambda r: r.pdf("v", [0.0, NAN], 1.0), r"grid must be finite"),
-    "x_grid": (lambda r: r.joint_pdf([1.0, 0.0], [0.0, 1.0], 1.0), r"x_grid must be strictly increasing"),
-    "v_grid": (lambda r: r.joint_pdf([0.0, 1.0], [], 1.0), r"v_grid must be a scalar or a non-empty 1-D array"),
+    "x_grid": (
+        lambda r: r.joint_pdf(("x", "v"), ([1.0, 0.0], [0.0, 1.0]), 1.0),
+        r"grids\[0\] must be strictly increasing",
+    ),
+    "v_grid": (
+        lambda r: r.joint_pdf(("x", "v"), ([0.0, 1.0], []), 1.0),
+        r"grids\[1\] must be a scalar or a non-empty 1-D array",
+    ),
     "edges": (lambda r: r.histogram("x", [0.0, 0.0, 1.0], 1.0), r"edges must be strictly increasing"),
     "variable": (lambda r: r.pdf("y", [0.0, 1.0], 1.0), r"var must be one of \('x', 'v'\), got 'y'"),
     "samples-variable": (lambda r: r.samples("displacement", 1.0), r"var must be one of"),
     "time-not-saved": (lambda r: r.pdf("x", [0.0, 1.0], 1.5), r"t=1\.5 was not saved; saved times are \[1\.0, 2\.0\]"),
     "bandwidth": (lambda r: r.pdf("x", [0.0, 1.0], 1.0, bandwidth=-0.1), r"bandwidth must lie in \(0, inf\)"),
-    "bandwidth-pair": (lambda r: r.joint_pdf([0.0, 1.0], [0.0, 1.0], 1.0, bandwidth=0.1), r"bandwidth must be None or"),
+    "bandwidth-pair": (
+        lambda r: r.joint_pdf(("x", "v"), ([0.0, 1.0], [0.0, 1.0]), 1.0, bandwidth=0.1),
+        r"bandwidth must be None or",
+    ),
     "rule": (lambda r: r.pdf("x", [0.0, 1.0], 1.0, rule="magic"), r"rule must be one of"),
 }
 

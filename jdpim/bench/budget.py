@@ -21,7 +21,8 @@ import numpy as np
 
 from .. import exact
 from .._excitation import SpectralRepresentation
-from ..methods._paths import dpim, monte_carlo
+from ..methods._dpim import dpim
+from ..methods._monte_carlo import monte_carlo
 from .accuracy import ALPHA, D, elastic_scene, exact_references, pdf_error
 
 
