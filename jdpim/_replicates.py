@@ -75,7 +75,7 @@ def dpim_replicates(scene, n_points: int = 1000, n_replicates: int = 4, *, seed:
         runs = jdpim.dpim_replicates(scene, 1000, 4)
         sd = np.std([r.pdf("x", grid, t) for r in runs], axis=0, ddof=1)  # the error of one run, on grid
     """
-    from .methods._paths import dpim
+    from .methods._dpim import dpim
 
     n_replicates = check_int("n_replicates", n_replicates, low=2)
     seed = check_int("seed", seed, low=0)

@@ -119,7 +119,7 @@ def _density(res: Result, var: str, grid, t, bandwidth, rule: str):
     return res.pdf(var, grid, t, bandwidth=sig[0])
 
 
-def _auto(scene: Scene, name: str):
+def _auto_estimator(scene: Scene, name: str):
     if not scene.model.has_barrier:
         return Pathwise()
     if name == "D":
@@ -137,7 +137,7 @@ def _estimators(scene: Scene, wrt, estimator) -> dict:
     for name in wrt:
         est = estimator.get(name, "auto") if isinstance(estimator, Mapping) else estimator
         if isinstance(est, str) and est == "auto":
-            est = _auto(scene, name)
+            est = _auto_estimator(scene, name)
         if not isinstance(est, kinds):
             raise TypeError(
                 f"estimator for {name!r} must be 'auto' or one of {[k.__name__ for k in kinds]}, got {est!r}"
@@ -310,14 +310,14 @@ def sensitivity(
     values = {name: _nominal(scene, name) for name in wrt}
     query = Query(wrt, values, var, grid, t, bandwidth, rule, estimator)
     if method is None:
-        method, answer = _auto(scene, query)
+        method, answer = _default_method(scene, query)
     else:
         answer = method.sensitivity(scene, query)
     value, stderr, estimators = answer
     return Sensitivity({n: value[n] for n in wrt}, {n: stderr[n] for n in wrt}, estimators, float(t), method.name)
 
 
-def _auto(scene: Scene, query: Query):
+def _default_method(scene: Scene, query: Query):
     """``(method, answer)`` of ``method=None``: path integration where it accepts the scene, else Monte Carlo."""
     sampling_only = not (isinstance(query.estimator, str) and query.estimator == "auto")
     if not (sampling_only or isinstance(query.bandwidth, str)):
