@@ -144,7 +144,10 @@ RESULT_CALLS = {
         r"grids\[1\] must be a scalar or a non-empty 1-D array",
     ),
     "edges": (lambda r: r.histogram("x", [0.0, 0.0, 1.0], 1.0), r"edges must be strictly increasing"),
-    "variable": (lambda r: r.pdf("y", [0.0, 1.0], 1.0), r"var must be one of the coordinates \('x', 'v'\) or a function"),
+    "variable": (
+        lambda r: r.pdf("y", [0.0, 1.0], 1.0),
+        r"var must be one of the coordinates \('x', 'v'\) or a function",
+    ),
     "samples-variable": (lambda r: r.samples("displacement", 1.0), r"var must be one of"),
     "time-not-saved": (lambda r: r.pdf("x", [0.0, 1.0], 1.5), r"t=1\.5 was not saved; saved times are \[1\.0, 2\.0\]"),
     "bandwidth": (lambda r: r.pdf("x", [0.0, 1.0], 1.0, bandwidth=-0.1), r"bandwidth must lie in \(0, inf\)"),

@@ -19,7 +19,7 @@ import numpy as np
 
 from .._pytree import concrete
 from .._scene import Scene
-from ..sensitivities._estimators import SensitivityWarning
+from .._warnings import SensitivityWarning
 
 GRAZING = (
     "pathwise derivatives through a start at rest on the barrier (a grazing impact) are biased: each path's "

@@ -28,12 +28,9 @@ import jax.numpy as jnp
 from .._models import Oscillator, VibroImpactOscillator
 from .._pytree import check_real
 from .._scene import get_parameter, set_parameter
+from .._warnings import SensitivityWarning as SensitivityWarning
 
 DRIFT_EXCLUDED = ("r", "barrier", "D")
-
-
-class SensitivityWarning(UserWarning):
-    """A sensitivity may be unreliable: pathwise tangents that blow up, or a standard error large against the value."""
 
 
 @dataclasses.dataclass(frozen=True)
