@@ -11,12 +11,9 @@ A bad value is rejected in one line with exit status 2; ``--traceback`` shows th
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import pathlib
 import sys
-
-import numpy as np
 
 PAPER_TABLE_1 = "paper's Table 1 (its own hardware, 1000 points vs 1e5 samples): DPIM 24.5-31.9 s, MCS 2.0e3-1.4e4 s"
 
@@ -140,15 +137,12 @@ def _paper_parser(sub) -> None:
 
 def run(args) -> dict:
     """The main job. Returns the summary it also writes to ``<out>/summary.json``."""
-    import jax
-
     import jdpim
-    from jdpim import metrics
-    from jdpim.bench import timed
+    from jdpim.cli import report
 
     if max(args.save_at) > args.t_end:
         raise UsageError(f"--save-at times must lie in [0, --t-end={args.t_end:g}], got {max(args.save_at):g}")
-    log = (lambda s: None) if args.quiet else (lambda s: print(s, flush=True))
+    log = report.logger(args.quiet)
     model = jdpim.VibroImpactOscillator(alpha=args.alpha, gamma=args.gamma, r=args.r)
     scene = jdpim.Scene(
         model, noise=jdpim.WhiteNoise(D=args.D), t_end=args.t_end, dt=args.dt, save_at=tuple(args.save_at)
@@ -159,141 +153,79 @@ def run(args) -> dict:
         f"dt={args.dt} s, w_u={scene.spectral_grid().cutoff:.3g} rad/s, K={scene.spectral_grid().n_terms}"
     )
     log(f"DPIM: {args.points} points, compile + warm-up + {args.repeats} timed runs ...")
-    devices = jax.local_devices()
-    dp, t_dp = timed("dpim", scene, args.points, repeats=args.repeats, devices=devices)
+    dp, t_dp = report.timed_protocol(scene, jdpim.DPIM(n_points=args.points), repeats=args.repeats)
     log(f"MCS: {args.samples} samples, compile + one timed run ...")
-    mc, t_mc = timed("monte_carlo", scene, args.samples, repeats=1, warmup=False, devices=devices)
+    mc, t_mc = report.timed_protocol(scene, jdpim.MonteCarlo(n_samples=args.samples), repeats=1, warmup=False)
     rows = [t_dp.row(), t_mc.row()]
-    table = _timing_table(rows, scene.n_steps)
+    table = report.markdown([{**r, "steps": scene.n_steps} for r in rows], TIMING_COLUMNS)
     print(table, flush=True)
     log(PAPER_TABLE_1)
 
-    from jdpim.cli._scenerun import grids
-
-    xg, vg = grids((dp, mc), 0.0, 301)
-    dist = {}
-    for t in scene.save_at:
-        for var, g in (("x", xg), ("v", vg)):
-            dist[f"L1(dpim, mcs) {var} t={t:g}"] = metrics.l1(
-                np.asarray(dp.pdf(var, g, t)), np.asarray(mc.pdf(var, g, t)), g
-            )
-    ref = _reference(scene, log)
+    results = {"dpim": dp, "monte_carlo": mc}
+    what = "path integration (reference): transient from the same start"
+    ref = report.reference(scene, jdpim.PathIntegration(), log, what)
     if ref is not None:
-        for name, res in (("dpim", dp), ("mcs", mc)):
-            for t in scene.save_at:
-                for var, g in (("x", xg), ("v", vg)):
-                    dist[f"L1({name}, path integration) {var} t={t:g}"] = metrics.l1(
-                        np.asarray(res.pdf(var, g, t)), np.asarray(ref.pdf(var, g, t)), g
-                    )
+        results["reference"] = ref
+    xg, vg = report.grids(scene, (dp, mc), 301)
+    xj, vj = xg[::2], vg[::2]
+    arrays = report.densities(results, scene.save_at, {"x": xg, "v": vg}, (xj, vj), scene.save_at[-1:])
+    # every saved time: DPIM against MCS first, then each against the reference
+    pairs = [("dpim", "monte_carlo")] + [(n, "reference") for n in ("dpim", "monte_carlo") if ref is not None]
+    dist = {
+        f"L1({SHORT[a]}, {SHORT[b]}) {var} t={t:g}": report.l1(arrays, a, b, var, g, i)
+        for a, b in pairs
+        for i, t in enumerate(scene.save_at)
+        for var, g in (("x", xg), ("v", vg))
+    }
     for k, v in dist.items():
         print(f"  {k}: {v:.4f}")
-    drawn = _figures(scene, dp, mc, ref, xg, vg, args)
-    from jdpim.cli._scenerun import versions
-
+    drawn = report.draw(scene, arrays, {"x": xg, "v": vg}, report.labels(results), args.out, joint_grids=(xj, vj))
     summary = {
         "scene": {
             k: (str(v) if isinstance(v, pathlib.Path) else v)
             for k, v in vars(args).items()
             if k not in ("func", "scene_file", "quiet", "traceback", "command")
         },
-        "versions": versions(),
+        "versions": report.versions(),
         "timing": rows,
         "distances": dist,
         "figures": drawn,
         "paper_table_1": PAPER_TABLE_1,
     }
-    (args.out / "summary.json").write_text(json.dumps(summary, indent=2))
+    report.write_json(args.out / "summary.json", summary)
     (args.out / "timing.md").write_text(table + "\n")
     print(f"wrote {', '.join(drawn)}, timing.md and summary.json to {args.out}/")
     return summary
 
 
-def _reference(scene, log):
-    """Path integration of the same scene from the same start (``GridResult``), or ``None`` where it cannot run.
-
-    It needs saved times at or after its start ``PathIntegration().t0`` on its step ``tau``
-    (docs/path_integration.md); otherwise the figures have no reference curve and the log says why.
-    """
-    import jdpim
-
-    log("path integration (reference): transient from the same start ...")
-    try:
-        return jdpim.path_integration(scene)
-    except ValueError as err:
-        log(f"no path-integration reference: {err}")
-        return None
-
-
-def _timing_table(rows, n_steps) -> str:
-    lines = [
-        "| method | paths | steps | devices | compile (s) | run, median (s) | path-steps/s |",
-        "|---|---:|---:|---:|---:|---:|---:|",
-    ]
-    for r in rows:
-        lines.append(
-            f"| {r['method']} | {r['n_paths']} | {n_steps} | {r['devices']} | {r['compile_s']:.2f} "
-            f"| {r['median_s']:.3f} | {r['path_steps_per_s']:.3g} |"
-        )
-    return "\n".join(lines)
-
-
-def _figures(scene, dp, mc, ref, xg, vg, args) -> list[str]:
-    from jdpim import figures
-
-    plt = figures.pyplot()
-    t_last = scene.save_at[-1]
-    title = figures.scene_title(args.alpha, args.gamma, args.r, args.D)
-    names = []
-    for var, g in (("x", xg), ("v", vg)):
-        fig, axes = plt.subplots(1, len(scene.save_at), figsize=(3.2 * len(scene.save_at), 2.8), squeeze=False)
-        for ax, t in zip(axes[0], scene.save_at, strict=True):
-            curves = [
-                ("monte_carlo", f"MCS ({mc.n_paths})", mc.pdf(var, g, t), mc.pdf_error(var, g, t)),
-                ("dpim", f"DPIM ({dp.n_paths})", dp.pdf(var, g, t), None),
-            ]
-            if ref is not None:
-                curves.append(("reference", "path integration", ref.pdf(var, g, t), None))
-            figures.marginal(ax, g, curves, var)
-            ax.set_title(f"$t = {t:g}$ s")
-        axes[0, -1].legend()
-        fig.suptitle(title)
-        fig.tight_layout()
-        name = f"marginal_{var}.png"
-        fig.savefig(args.out / name, dpi=150)
-        plt.close(fig)
-        names.append(name)
-    xj, vj = xg[::2], vg[::2]
-    panels = [
-        (f"DPIM, $t = {t_last:g}$ s", np.asarray(dp.joint_pdf(("x", "v"), (xj, vj), t_last))),
-        (f"MCS, $t = {t_last:g}$ s", np.asarray(mc.joint_pdf(("x", "v"), (xj, vj), t_last))),
-    ]
-    if ref is not None:
-        panels.append(
-            (f"path integration, $t = {t_last:g}$ s", np.asarray(ref.joint_pdf(("x", "v"), (xj, vj), t_last)))
-        )
-    fig, axes = plt.subplots(1, len(panels), figsize=(3.7 * len(panels), 3.3), sharey=True, layout="constrained")
-    figures.joint(fig, axes, xj, vj, panels)
-    fig.suptitle(title)
-    fig.savefig(args.out / "joint.png", dpi=150)
-    plt.close(fig)
-    return names + ["joint.png"]
+# the main job's timing table: a row per method (``jdpim.bench.Timing.row()`` and the number of steps)
+TIMING_COLUMNS = (
+    ("method", "{method}", "l"),
+    ("paths", "{n_paths}", "r"),
+    ("steps", "{steps}", "r"),
+    ("devices", "{devices}", "r"),
+    ("compile (s)", "{compile_s:.2f}", "r"),
+    ("run, median (s)", "{median_s:.3f}", "r"),
+    ("path-steps/s", "{path_steps_per_s:.3g}", "r"),
+)
+SHORT = {"dpim": "dpim", "monte_carlo": "mcs", "reference": "path integration"}  # names in the distances
 
 
 def _run_scene(args) -> dict:
     from jdpim.cli import _scenefile, _scenerun
+    from jdpim.cli.report import logger
 
     sf = _scenefile.load(args.scene_file)
-    log = (lambda s: None) if args.quiet else (lambda s: print(s, flush=True))
-    return _scenerun.run(sf, args.out, progress=not args.quiet, log=log)
+    return _scenerun.run(sf, args.out, progress=not args.quiet, log=logger(args.quiet))
 
 
 def _paper(args) -> dict:
     from jdpim import paper
+    from jdpim.cli.report import logger
 
     settings = paper.QUICK if args.quick else paper.FULL
     settings = settings.with_overrides(n_points=args.points, n_samples=args.samples, replicates=args.replicates)
-    log = (lambda s: None) if args.quiet else (lambda s: print(s, flush=True))
-    return paper.reproduce(settings, args.out, pdf=args.pdf, log=log, progress=not args.quiet)
+    return paper.reproduce(settings, args.out, pdf=args.pdf, log=logger(args.quiet), progress=not args.quiet)
 
 
 def _version() -> str:

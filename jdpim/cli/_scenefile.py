@@ -53,6 +53,14 @@ class Method:
     n_paths: int
     seed: int = 0
 
+    def method(self, *, progress: bool | None = None):
+        """The method object ``jdpim.solve`` runs: ``jdpim.DPIM`` or ``jdpim.MonteCarlo``."""
+        import jdpim
+
+        if self.name == "dpim":
+            return jdpim.DPIM(n_points=self.n_paths, progress=progress)
+        return jdpim.MonteCarlo(n_samples=self.n_paths, seed=self.seed, progress=progress)
+
 
 @dataclasses.dataclass(frozen=True)
 class Outputs:

@@ -1,0 +1,265 @@
+"""Reports shared by ``jdpim run`` (the main job and scene files) and ``jdpim paper``.
+
+Solving a scene with several methods (``jdpim.solve``, timed), the densities of the results on common grids,
+the timing tables (Markdown, CSV), the versions, and the figures (``jdpim.figures``). Density arrays are keyed
+as in a scene file's ``.npz``: ``<name>_pdf_<var>``, ``<name>_stderr_<var>``, ``<name>_joint``, with the
+names ``"dpim"``, ``"monte_carlo"`` and ``"reference"``.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import pathlib
+import platform
+import time
+
+import numpy as np
+
+from .. import figures, metrics
+
+NAME = {**figures.NAME, "reference": "path integration"}  # legends and panel titles
+
+
+def logger(quiet: bool):
+    """The progress log: ``print`` (flushed), or nothing with ``--quiet``."""
+    return (lambda s: None) if quiet else (lambda s: print(s, flush=True))
+
+
+def versions() -> dict:
+    """Versions of jdpim, JAX, NumPy and Python, and the JAX backend (for the metadata of every output)."""
+    import jax
+
+    import jdpim
+
+    return {
+        "jdpim": jdpim.__version__,
+        "jax": jax.__version__,
+        "numpy": np.__version__,
+        "python": platform.python_version(),
+        "backend": jax.default_backend(),
+        "devices": len(jax.devices()),
+    }
+
+
+def timed(fn, log, what: str):
+    """``fn()`` until its arrays are ready, logged as ``what``; returns ``(value, wall_s, cpu_s)``.
+
+    The times are of the whole call, compilation included where it compiles (the first run of a shape).
+    """
+    import jax
+
+    log(f"{what} ...")
+    t0, c0 = time.perf_counter(), time.process_time()
+    value = jax.block_until_ready(fn())
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    log(f"{what}: {wall:.1f} s wall, {cpu:.1f} s CPU")
+    return value, wall, cpu
+
+
+def solve_timed(scene, method, log, what: str):
+    """``jdpim.solve(scene, method)`` under :func:`timed`; returns ``(result, wall_s, cpu_s)``."""
+    import jdpim
+
+    return timed(lambda: jdpim.solve(scene, method), log, what)
+
+
+def timed_protocol(scene, method, *, repeats: int, warmup: bool = True):
+    """A ``jdpim.DPIM`` or ``jdpim.MonteCarlo`` run under ``jdpim.bench.timed``'s protocol: ``(result, Timing)``.
+
+    The ahead-of-time compilation is timed apart from the runs, the warm-up run (``warmup``) is not timed,
+    and ``repeats`` runs give the median; the paths are split over ``method.devices`` (default: every local
+    device), as ``jdpim.solve`` splits them.
+    """
+    import jax
+
+    from jdpim.bench import timed as bench_timed
+
+    dpim = method.name == "dpim"
+    return bench_timed(
+        method.name,
+        scene,
+        method.n_points if dpim else method.n_samples,
+        seed=0 if dpim else method.seed,
+        points=method.points if dpim else None,
+        chunk_size=method.chunk_size,
+        repeats=repeats,
+        warmup=warmup,
+        devices=method.devices or jax.local_devices(),
+    )
+
+
+def reference(scene, method, log, what: str = "path integration (reference)"):
+    """Path integration of ``scene`` by ``method`` (a ``jdpim.PathIntegration``), or ``None`` where it cannot run.
+
+    Transient path integration needs saved times at or after its start ``t0``, on its step ``tau``
+    (docs/path_integration.md); where ``scene`` has others, the log says why there is no reference.
+    """
+    try:
+        return solve_timed(scene, method, log, what)[0]
+    except ValueError as err:
+        log(f"no path-integration reference: {err}")
+        return None
+
+
+def grids(scene, results, n_grid: int, q: float = 0.999):
+    """Displacement and velocity grids, ``n_grid`` nodes each, covering the central ``q`` of the mass.
+
+    Over every saved time and every sampling result (``jdpim.Result``) of ``results``; ``x`` starts at the
+    barrier where ``scene`` has one, ``v`` is symmetric about 0.
+    """
+    barrier = float(scene.model.barrier) if scene.model.has_barrier else None
+    xs, vs = [], []
+    for res in results:
+        x, v = np.asarray(res.states[..., 0]), np.asarray(res.states[..., 1])
+        w = np.broadcast_to(np.asarray(res.weights)[:, None], x.shape)
+        xs.append(figures.mass_range(x, w, q=q, lower=barrier))
+        vs.append(figures.mass_range(v, w, q=q))
+    x_lo = barrier if barrier is not None else min(a for a, _ in xs)
+    v_half = max(max(abs(a), abs(b)) for a, b in vs)
+    return np.linspace(x_lo, max(b for _, b in xs), n_grid), np.linspace(-v_half, v_half, n_grid)
+
+
+def _has_error(res) -> bool:
+    """Whether ``res.pdf_error`` has an estimate: Monte Carlo, or path integration with ``estimate_error``."""
+    return res.method == "monte_carlo" or getattr(res, "coarse", None) is not None
+
+
+def densities(results: dict, times, grids: dict, joint_grids=None, joint_times=()) -> dict:
+    """Densities of named results on common grids.
+
+    Args:
+        results: name -> ``jdpim.Result`` or ``jdpim.GridResult`` (a stationary one gives its density at
+            every time).
+        times: saved times of the marginals, s.
+        grids: variable (``"x"``, ``"v"``) -> 1-D grid of its marginal.
+        joint_grids: ``(x_grid, v_grid)`` of the joint densities (``None``: none).
+        joint_times: saved times of the joint densities, s.
+
+    Returns:
+        ``<name>_pdf_<var>``, shape ``(len(times), len(grid))``; ``<name>_stderr_<var>`` of the same shape
+        where the result has an error estimate (``pdf_error``); ``<name>_joint``, shape
+        ``(len(joint_times), len(x_grid), len(v_grid))``, where ``joint_grids`` is given.
+    """
+    arrays = {}
+    for name, res in results.items():
+        for var, g in grids.items():
+            arrays[f"{name}_pdf_{var}"] = np.stack([np.asarray(res.pdf(var, g, t)) for t in times])
+            if _has_error(res):
+                arrays[f"{name}_stderr_{var}"] = np.stack([np.asarray(res.pdf_error(var, g, t)) for t in times])
+        if joint_grids is not None:
+            arrays[f"{name}_joint"] = np.stack(
+                [np.asarray(res.joint_pdf(("x", "v"), joint_grids, t)) for t in joint_times]
+            )
+    return arrays
+
+
+def l1(arrays: dict, a: str, b: str, var: str, grid, i: int) -> float:
+    """L1 distance between the marginals of ``var`` of results ``a`` and ``b`` in row ``i`` of :func:`densities`."""
+    return metrics.l1(arrays[f"{a}_pdf_{var}"][i], arrays[f"{b}_pdf_{var}"][i], grid)
+
+
+def markdown(rows: list[dict], columns) -> str:
+    """A Markdown table of ``rows``: ``columns`` are ``(header, template, align)``, the template formatted with
+    each row (``"{wall_s:.1f}"``), ``align`` ``"l"`` or ``"r"``."""
+    lines = [
+        "| " + " | ".join(h for h, _, _ in columns) + " |",
+        "|" + "|".join("---" if a == "l" else "---:" for _, _, a in columns) + "|",
+    ]
+    lines += ["| " + " | ".join(tpl.format(**r) for _, tpl, _ in columns) + " |" for r in rows]
+    return "\n".join(lines)
+
+
+def write_csv(path: pathlib.Path, rows: list[dict], comment: str) -> None:
+    """``rows`` as CSV, after a ``# comment`` line (the settings they were measured with)."""
+    with path.open("w", newline="") as fh:
+        fh.write(f"# {comment}\n")
+        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+
+
+def write_json(path: pathlib.Path, data: dict) -> None:
+    """``data`` as indented JSON."""
+    path.write_text(json.dumps(data, indent=2))
+
+
+def scene_title(scene) -> str:
+    """The scene's parameters for a figure title (``figures.scene_title``)."""
+    model = scene.model
+    return figures.scene_title(model.alpha, model.gamma, model.r, scene.noise.D)
+
+
+def labels(results: dict) -> dict:
+    """Legend labels of named results (``"MCS (10000 paths)"``), Monte Carlo first: its dots under the lines."""
+    order = ("monte_carlo", "dpim", "reference")
+    return {
+        n: NAME[n] if n == "reference" else f"{NAME[n]} ({results[n].n_paths} paths)"
+        for n in sorted(results, key=order.index)
+    }
+
+
+def curves(arrays: dict, labels: dict, var: str, i: int) -> list:
+    """``figures.marginal``'s curves in row ``i`` of :func:`densities`: each result of ``labels`` (name ->
+    legend label, drawn in the style of its name) with its error band where it has one."""
+    rows = {n: (arrays[f"{n}_pdf_{var}"], arrays.get(f"{n}_stderr_{var}")) for n in labels}
+    return [(n, label, rows[n][0][i], None if rows[n][1] is None else rows[n][1][i]) for n, label in labels.items()]
+
+
+def marginal_figure(grids: dict, times, panel_curves, title: str, *, title_size=None):
+    """Marginal PDFs: a row of panels per variable of ``grids``, a column per saved time (s).
+
+    ``panel_curves(var, i)`` gives the ``figures.marginal`` curves of the panel of ``var`` at ``times[i]``.
+    """
+    plt = figures.pyplot()
+    fig, axes = plt.subplots(len(grids), len(times), figsize=(3.2 * len(times), 0.2 + 2.6 * len(grids)), squeeze=False)
+    for row, (var, g) in enumerate(grids.items()):
+        for i, t in enumerate(times):
+            figures.marginal(axes[row, i], g, panel_curves(var, i), var)
+            axes[row, i].set_title(f"$t = {t:g}$ s")
+    axes[0, -1].legend()
+    fig.suptitle(title, **({} if title_size is None else {"fontsize": title_size}))
+    fig.tight_layout()
+    return fig
+
+
+def joint_figure(x_grid, v_grid, panels, title: str, *, title_size=None):
+    """Joint PDFs side by side on shared contour levels: ``panels = [(title, p[len(x_grid), len(v_grid)])]``."""
+    plt = figures.pyplot()
+    fig, axes = plt.subplots(
+        1, len(panels), figsize=(3.5 * len(panels) + 0.8, 3.3), sharey=True, layout="constrained", squeeze=False
+    )
+    figures.joint(fig, axes[0], x_grid, v_grid, panels)
+    fig.suptitle(title, **({} if title_size is None else {"fontsize": title_size}))
+    return fig
+
+
+def draw(scene, arrays: dict, grids: dict, labels: dict, out: pathlib.Path, *, prefix="", joint_grids=None):
+    """The figures of a run in ``out``; returns their file names.
+
+    ``<prefix>marginal_<var>.png`` for each variable of ``grids`` (a panel per saved time) and, with
+    ``joint_grids``, ``<prefix>joint.png`` (a panel per result, at the last saved time), from the
+    :func:`densities` ``arrays`` of the results named in ``labels``.
+    """
+    title = scene_title(scene)
+    names = []
+    for var, g in grids.items():
+        fig = marginal_figure({var: g}, scene.save_at, lambda var, i: curves(arrays, labels, var, i), title)
+        names += save(fig, out, f"{prefix}marginal_{var}")
+    if joint_grids is not None:
+        t = scene.save_at[-1]
+        panels = [(f"{NAME[n]}, $t = {t:g}$ s", arrays[f"{n}_joint"][-1]) for n in labels]
+        names += save(joint_figure(*joint_grids, panels, title), out, f"{prefix}joint")
+    return names
+
+
+def save(fig, out: pathlib.Path, stem: str, *, pdf: bool = False) -> list[str]:
+    """Write ``fig`` to ``out/<stem>.png`` (150 dpi) and, with ``pdf``, ``out/<stem>.pdf``; close it.
+
+    Returns the file names written.
+    """
+    names = [f"{stem}.png"] + ([f"{stem}.pdf"] if pdf else [])
+    for name in names:
+        fig.savefig(out / name, dpi=150)
+    figures.pyplot().close(fig)
+    return names
