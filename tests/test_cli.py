@@ -11,6 +11,7 @@ import pytest
 
 import jdpim
 from jdpim import cli
+from jdpim.cli import report
 from jdpim.cli._scenefile import SceneFileError, load
 
 EXAMPLE = pathlib.Path(__file__).parents[1] / "examples" / "reference.toml"
@@ -236,5 +237,5 @@ def test_main_job_reference_says_why_it_is_missing():
     """Saved times before path integration's start leave the main job without a reference, and the log says why."""
     scene = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=2.0, dt=0.01, save_at=(0.5, 2.0))
     lines = []
-    assert cli._reference(scene, lines.append) is None
+    assert report.reference(scene, jdpim.PathIntegration(), lines.append) is None
     assert "no path-integration reference: saved time 0.5 must be t0=1.0" in lines[-1]
