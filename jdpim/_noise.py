@@ -46,7 +46,7 @@ class WhiteNoise:
 
     @property
     def n_sources(self) -> int:
-        shape = jnp.shape(self.D)
+        shape = np.shape(self.D)  # NumPy: a nested list is a matrix too (JAX warns on lists)
         return 1 if len(shape) == 0 else int(shape[0])
 
     def mixing(self) -> jnp.ndarray:
