@@ -95,9 +95,19 @@ def check_int(name: str, value: Any, *, low: int) -> int:
     return int(value)
 
 
+def _numeric(name: str, value: Any) -> np.ndarray | None:
+    """``value`` as a concrete array (``None`` if traced); text and other non-numbers are a ``TypeError``."""
+    if isinstance(value, (str, bytes)):
+        raise TypeError(f"{name} must be numbers (a scalar or a 1-D array), got {value!r}")
+    arr = concrete(value)
+    if arr is not None and not (np.issubdtype(arr.dtype, np.number) or arr.dtype == bool):
+        raise TypeError(f"{name} must be numbers (a scalar or a 1-D array), got {plain(value)!r}")
+    return arr
+
+
 def check_grid(name: str, grid: Any) -> np.ndarray | None:
     """Check a 1-D evaluation grid: non-empty, finite and strictly increasing. Returns it if concrete."""
-    arr = concrete(grid)
+    arr = _numeric(name, grid)
     if arr is None:
         return None
     if arr.ndim != 1 or arr.size < 2:
@@ -115,7 +125,7 @@ def check_points(name: str, points: Any) -> np.ndarray | None:
     Returns them as an array if concrete. Unlike :func:`check_grid`, one point (or a scalar) is allowed,
     so that a density can be evaluated, and differentiated, at a single value.
     """
-    arr = concrete(points)
+    arr = _numeric(name, points)
     if arr is None:
         return None
     if arr.ndim > 1 or arr.size < 1:

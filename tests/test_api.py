@@ -92,7 +92,9 @@ def test_t_is_required_where_a_result_holds_several_times(scene):
 @pytest.mark.parametrize(
     "call, error, match",
     [
-        (lambda s: jdpim.solve(s, "dpim"), TypeError, r"a method is an object: jdpim.DPIM\(\)"),
+        (lambda s: jdpim.solve(s, "dpim"), TypeError, r"a jdpim method object, e.g. jdpim.DPIM\(\).*got 'dpim'"),
+        (lambda s: jdpim.solve(s, jdpim.DPIM), TypeError, r"got the class DPIM"),
+        (lambda s: jdpim.solve(s, jdpim.DPIM(16)).pdf("x", "abc"), TypeError, r"grid must be numbers"),
         (lambda s: jdpim.solve(None, jdpim.DPIM()), TypeError, "scene must be a jdpim.Scene"),
         (lambda s: jdpim.DPIM(n_points=1), ValueError, "n_points must be an integer >= 2"),
         (lambda s: jdpim.DPIM(points=np.ones((4, 2))), TypeError, "points must be a jdpim.PointSet"),

@@ -52,10 +52,9 @@ def solve(scene: Scene, method: AbstractMethod):
     if not isinstance(scene, Scene):
         raise TypeError(f"scene must be a jdpim.Scene, got {type(scene).__name__}")
     if not isinstance(method, AbstractMethod):
-        hint = (
-            f" (a method is an object: jdpim.DPIM(), jdpim.MonteCarlo() or jdpim.PathIntegration(), not {method!r})"
-            if isinstance(method, str)
-            else ""
+        what = f"the class {method.__name__}" if isinstance(method, type) else repr(method)
+        raise TypeError(
+            f"method must be a jdpim method object, e.g. jdpim.DPIM(), jdpim.MonteCarlo() or jdpim.PathIntegration(); "
+            f"got {what}"
         )
-        raise TypeError(f"method must be a jdpim method, got {type(method).__name__}{hint}")
     return method.run(scene)
