@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -29,6 +30,10 @@ class WhiteNoise:
     def __post_init__(self):
         if isinstance(self.D, (str, bytes)):
             raise TypeError(f"D must be a real number or a matrix of them, got {self.D!r}")
+        if isinstance(self.D, (list, tuple)):  # one array leaf, not a leaf per entry
+            leaves = jax.tree_util.tree_leaves(self.D)
+            traced = any(isinstance(x, jax.core.Tracer) for x in leaves)
+            object.__setattr__(self, "D", jnp.asarray(self.D) if traced else np.asarray(self.D, dtype=float))
         arr = concrete(self.D)
         if arr is None:
             return
@@ -46,7 +51,7 @@ class WhiteNoise:
 
     @property
     def n_sources(self) -> int:
-        shape = np.shape(self.D)  # NumPy: a nested list is a matrix too (JAX warns on lists)
+        shape = np.shape(self.D)
         return 1 if len(shape) == 0 else int(shape[0])
 
     def mixing(self) -> jnp.ndarray:

@@ -97,3 +97,13 @@ def test_paper_case_dpim_near_averaging_solution():
     res = jdpim.dpim(scene, n_points=1000)
     ref = exact.averaging_second_moment(0.03, 0.03, 0.98, 0.03)
     assert float(res.moment("x", 2, 200.0)) == pytest.approx(ref, rel=0.1)
+
+
+def test_correlated_sources_given_as_nested_list():
+    """Two correlated sources with unit gains add up to one of intensity D11 + D22 + 2 D12: var x = D_eff / alpha."""
+    D = [[0.02, 0.005], [0.005, 0.01]]
+    model = jdpim.Oscillator(f=lambda x, v, p: 0.5 * v, g=lambda x, p: x, n_sources=2, barrier=None)
+    scene = jdpim.Scene(model, noise=jdpim.WhiteNoise(D=D), t_end=30.0, dt=0.05, x0=0.0)
+    res = jdpim.solve(scene, jdpim.MonteCarlo(n_samples=4000, seed=0))
+    expected = (0.02 + 0.01 + 2 * 0.005) / 0.5
+    assert abs(float(res.moment("x", 2)) / expected - 1) < 0.08
