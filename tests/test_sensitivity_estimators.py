@@ -19,6 +19,7 @@ from jdpim.sensitivities._estimators import (
     Pathwise,
     SensitivityWarning,
 )
+from jdpim.sensitivities._sensitivity import _score_settings
 
 ALPHA, D, T, H = 0.2, 0.05, 6.0, 0.15
 XS = np.linspace(-1.2, 1.2, 25)
@@ -118,6 +119,20 @@ def test_estimators_refuse_what_they_cannot_do():
         jdpim.sensitivity(scene, ("D",), "x", XS + 1.5, estimator=NoiseScaling())
     with pytest.raises(TypeError, match="estimator for 'alpha'"):
         jdpim.sensitivity(scene, ("alpha",), "x", XS + 1.5, estimator="pathwise")
+
+
+def test_estimators_carry_their_behaviour():
+    """Which scores each estimator asks for (a parameter's own settings win), which is joint, what each refuses."""
+    model = jdpim.VibroImpactOscillator(alpha=ALPHA, gamma=0.03, r=0.9, barrier=0.0)
+    scene = jdpim.Scene(model, noise=jdpim.WhiteNoise(D=D), t_end=T, dt=0.02)
+    lr = LikelihoodRatio(window=3.0)
+    assert lr.scores_needed("alpha", scene) == {"alpha": lr}
+    assert NoiseScaling().scores_needed("D", scene) == {"gamma": LikelihoodRatio()}
+    assert CentralDifference().scores_needed("r", scene) == {}
+    assert _score_settings(scene, ("D", "gamma"), {"D": NoiseScaling(), "gamma": lr}) == {"gamma": lr}
+    assert Pathwise().joint and not any(e.joint for e in (lr, NoiseScaling(), CentralDifference()))
+    with pytest.raises(ValueError, match="barrier moves the kernel"):  # refused before any path is run
+        jdpim.sensitivity(scene, ("barrier",), "x", XS + 1.5, estimator=CentralDifference(), method=jdpim.MonteCarlo())
 
 
 def test_accumulator_sums_the_noise_increments():

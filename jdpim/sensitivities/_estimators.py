@@ -11,16 +11,22 @@ deterministic points). ``K(y, Y)`` is the density's kernel (reflected at the bar
 - :class:`NoiseScaling` (``D`` of :class:`VibroImpactOscillator` with the barrier at 0, started at rest):
   ``p(x; D, gamma) = D^-1/2 q(x / sqrt D; gamma D)`` gives
   ``dp/dD = -(1/2D) sum_j d_j(y_j p) + (gamma / D) dp/dgamma``, so ``c_i = Y_i . grad_Y K / (2 D) + gamma/D c_i^gamma``.
-- :class:`CentralDifference` (any parameter; the default for ``r`` and ``barrier``): common random numbers,
+- :class:`CentralDifference` (any parameter but ``barrier``; the default for ``r``): common random numbers,
   ``c_i = (K(y, Y_i(theta + d)) - K(y, Y_i(theta - d))) / 2d``.
 - :class:`Pathwise`: forward/reverse AD through the whole pipeline; exact for the computed density but its
   tangents grow without bound across impacts, so trusted only over short horizons (a warning beyond).
+
+Each estimator carries its own behaviour (:class:`AbstractEstimator`): ``check`` refuses a parameter or scene it
+does not apply to, ``scores_needed`` names the Girsanov score sums to accumulate along the common paths, and
+``estimate`` returns ``(value, stderr)`` from the shared paths (``sensitivities._sensitivity.PathContext``).
+:class:`Pathwise` is ``joint``: its parameters are differentiated together through the pipeline instead.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -33,8 +39,27 @@ from .._warnings import SensitivityWarning as SensitivityWarning
 DRIFT_EXCLUDED = ("r", "barrier", "D")
 
 
+class AbstractEstimator:
+    """Base of the estimators of ``dp(y, t) / d theta`` for one parameter.
+
+    A per-path estimator (``joint = False``) implements ``estimate(ctx, name) -> (value, stderr)``: arrays shaped
+    like the PDF, in PDF units per parameter unit, from the common paths of ``ctx``
+    (``sensitivities._sensitivity.PathContext``). A joint one (:class:`Pathwise`) is differentiated with the
+    other joint parameters through the whole pipeline.
+    """
+
+    joint: ClassVar[bool] = False
+
+    def check(self, scene, name: str) -> None:
+        """Raise ``ValueError`` unless the estimator applies to parameter ``name`` of ``scene``."""
+
+    def scores_needed(self, name: str, scene) -> dict:
+        """``{parameter: LikelihoodRatio}``: score sums to accumulate along the paths, with their settings."""
+        return {}
+
+
 @dataclasses.dataclass(frozen=True)
-class Pathwise:
+class Pathwise(AbstractEstimator):
     """Differentiate the pipeline itself (``jax.jacfwd`` or ``jax.jacrev``): exact for the computed density.
 
     Args:
@@ -44,6 +69,7 @@ class Pathwise:
             later times give a :class:`SensitivityWarning`.
     """
 
+    joint: ClassVar[bool] = True
     mode: str = "forward"
     horizon: float = 4.0
 
@@ -54,7 +80,7 @@ class Pathwise:
 
 
 @dataclasses.dataclass(frozen=True)
-class LikelihoodRatio:
+class LikelihoodRatio(AbstractEstimator):
     r"""Centred, truncated likelihood-ratio (Girsanov score) estimator for drift parameters.
 
     Args:
@@ -74,9 +100,23 @@ class LikelihoodRatio:
         if self.window is not None:
             check_real("window", self.window, low=0.0, low_open=True)
 
+    def check(self, scene, name: str) -> None:
+        check_likelihood_ratio(scene, name)
+
+    def scores_needed(self, name: str, scene) -> dict:
+        return {name: self}
+
+    def estimate(self, ctx, name: str):
+        """``c_i = K(y, Y_i) (S_i - Sbar)`` with the centred score of ``name``."""
+
+        def contribution(x, v, s):
+            return ctx.kern(x, v) * ctx.per_path(s)
+
+        return ctx.moments(contribution, (ctx.x, ctx.v, ctx.scores[name]))
+
 
 @dataclasses.dataclass(frozen=True)
-class NoiseScaling:
+class NoiseScaling(AbstractEstimator):
     """``dp/dD`` from the exact scaling of :class:`VibroImpactOscillator` (barrier 0, start at rest).
 
     Args:
@@ -85,9 +125,34 @@ class NoiseScaling:
 
     gamma: LikelihoodRatio = LikelihoodRatio()
 
+    def check(self, scene, name: str) -> None:
+        if name != "D":
+            raise ValueError(f"NoiseScaling estimates dp/dD only, not {name!r}")
+        reason = noise_scaling_applies(scene)
+        if reason is not None:
+            raise ValueError(f"NoiseScaling does not apply: {reason}; use CentralDifference for D")
+        if scene.model.gamma is not None:
+            self.gamma.check(scene, "gamma")
+
+    def scores_needed(self, name: str, scene) -> dict:
+        return {} if scene.model.gamma is None else {"gamma": self.gamma}
+
+    def estimate(self, ctx, name: str):
+        """``c_i = Y_i . grad_Y K / (2 D) + gamma / D c_i^gamma``."""
+        dtype = ctx.scene.float_dtype
+        D = jnp.asarray(ctx.scene.noise.D, dtype)
+        gamma = ctx.scene.model.gamma
+        coef = 0.0 if gamma is None else jnp.asarray(gamma, dtype) / D
+
+        def contribution(x, v, s):
+            k, ydk = jax.jvp(ctx.kern, (x, v), (x, v))
+            return ydk / (2.0 * D) + coef * k * ctx.per_path(s)
+
+        return ctx.moments(contribution, (ctx.x, ctx.v, ctx.scores.get("gamma", jnp.zeros_like(ctx.x))))
+
 
 @dataclasses.dataclass(frozen=True)
-class CentralDifference:
+class CentralDifference(AbstractEstimator):
     """Central differences with common random numbers (the same seed or the same point set).
 
     Args:
@@ -102,6 +167,22 @@ class CentralDifference:
     def __post_init__(self):
         if self.step is not None:
             check_real("step", self.step, low=0.0, low_open=True)
+
+    def check(self, scene, name: str) -> None:
+        if name == "barrier":
+            raise ValueError(
+                "CentralDifference with respect to the barrier moves the kernel's reflection: not supported"
+            )
+
+    def estimate(self, ctx, name: str):
+        """``c_i = (K(y, Y_i(hi)) - K(y, Y_i(lo))) / (hi - lo)`` over the common paths rerun at both ends."""
+        lo, hi = self.pair(name, float(ctx.values[name]))
+        w, (a, b) = ctx.rerun(name, (lo, hi))
+
+        def contribution(xa, va, xb, vb):
+            return (ctx.kern(xb, vb) - ctx.kern(xa, va)) / (hi - lo)
+
+        return ctx.moments(contribution, (a[:, 0], a[:, 1], b[:, 0], b[:, 1]), w)
 
     def pair(self, name: str, value: float) -> tuple[float, float]:
         """The two parameter values ``(lo, hi)`` of the difference, inside the parameter's range."""

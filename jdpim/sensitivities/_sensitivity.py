@@ -6,7 +6,8 @@ sampling error. The sampling methods write
 
 .. math::  \frac{\partial p(y, t)}{\partial \theta} \approx \sum_i w_i \, c_i(y)
 
-with per-path contributions ``c_i`` from an estimator per parameter (``jdpim.sensitivities._estimators``): a likelihood
+with per-path contributions ``c_i`` from an estimator per parameter (``jdpim.sensitivities._estimators``; each
+computes its own from the common paths of a :class:`PathContext`): a likelihood
 ratio (Girsanov score) for drift parameters, the exact noise scaling for ``D``, central differences with
 common random numbers for ``r``, or pathwise AD through the pipeline (exact for the computed density, but
 only over short horizons when there are impacts). ``estimator="auto"`` picks the pathwise derivative for
@@ -22,7 +23,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import jax
@@ -142,16 +143,7 @@ def _estimators(scene: Scene, wrt, estimator) -> dict:
             raise TypeError(
                 f"estimator for {name!r} must be 'auto' or one of {[k.__name__ for k in kinds]}, got {est!r}"
             )
-        if isinstance(est, LikelihoodRatio):
-            check_likelihood_ratio(scene, name)
-        if isinstance(est, NoiseScaling):
-            if name != "D":
-                raise ValueError(f"NoiseScaling estimates dp/dD only, not {name!r}")
-            reason = noise_scaling_applies(scene)
-            if reason is not None:
-                raise ValueError(f"NoiseScaling does not apply: {reason}; use CentralDifference for D")
-            if scene.model.gamma is not None:
-                check_likelihood_ratio(scene, "gamma")
+        est.check(scene, name)
         out[name] = est
     return out
 
@@ -336,19 +328,19 @@ def sampled_sensitivity(scene: Scene, method, query: Query):
     """``(value, stderr, estimators)`` from the paths of a sampling method (DPIM or Monte Carlo)."""
     wrt, var, grid, t, bandwidth, rule = query.wrt, query.var, query.grid, query.t, query.bandwidth, query.rule
     estimators = _estimators(scene, wrt, query.estimator)
-    if bandwidth == "adaptive" and not all(isinstance(e, Pathwise) for e in estimators.values()):
+    if bandwidth == "adaptive" and not all(e.joint for e in estimators.values()):
         raise ValueError("bandwidth='adaptive' needs the Pathwise estimator for every parameter")
     rows, weights, chunk = method.inputs(scene)
     kind = method.name
     value, stderr = {}, {}
-    pathwise = [n for n in wrt if isinstance(estimators[n], Pathwise)]
+    pathwise = [n for n in wrt if estimators[n].joint]
     if pathwise:
         args = (var, grid, t, query.values, bandwidth, rule, kind, rows, weights, chunk)
         value.update(_pathwise(scene, pathwise, estimators, *args))
         stderr.update({n: jnp.full_like(value[n], jnp.nan) for n in pathwise})
     rest = [n for n in wrt if n not in pathwise]
     if rest:
-        v, e = _sampled(scene, rest, estimators, var, grid, t, bandwidth, rule, kind, rows, weights, chunk)
+        v, e = _sampled(scene, rest, estimators, query, kind, rows, weights, chunk)
         value.update(v)
         stderr.update(e)
         for name in rest:
@@ -412,91 +404,138 @@ def pathwise_guard(has_barrier: bool, t: float, horizon: float, values: dict, de
             )
 
 
-def _sampled(scene, names, estimators, var, grid, t, bandwidth, rule, method, rows, weights, chunk):
-    """Likelihood-ratio, noise-scaling and central-difference estimates from one common set of paths."""
-    dtype = scene.float_dtype
+@dataclasses.dataclass(frozen=True)
+class PathContext:
+    """What the per-path estimators share: the common paths at time ``t``, their weights, kernel and scores.
+
+    Attributes:
+        scene: the scene at its nominal parameters.
+        values: ``{name: nominal value}`` of the parameters differentiated.
+        x, v: ``(N,)`` position and velocity of each path at ``t`` (zero where not finite).
+        weights: ``(N,)`` path weights (``1/N`` or ``P_q``), zero for paths not finite at ``t``.
+        kern: per-path kernels ``(x, v)`` chunks ``(c,)`` -> ``(c, *grid_shape)``, in PDF units.
+        grid_ndim: number of grid axes (1, or 2 for ``"xv"``).
+        scores: ``{name: (N,)}`` centred Girsanov scores (per parameter unit) of the names in ``scores_needed``.
+        run_scene: ``scene`` saving only at ``t`` and the score windows' starts; ``index``: ``t``'s save slot.
+        rows, path_weights, method, chunk: the sampling method's inputs (``method.inputs``) and its name.
+    """
+
+    scene: Scene
+    values: dict
+    x: Any
+    v: Any
+    weights: Any
+    kern: Callable
+    grid_ndim: int
+    scores: dict
+    run_scene: Scene
+    index: int
+    rows: Any
+    path_weights: Any
+    method: str
+    chunk: Any
+
+    def per_path(self, s):
+        """``(N,)`` or ``(c,)`` per-path values shaped to broadcast against the kernel's grid axes."""
+        return s.reshape((-1,) + (1,) * self.grid_ndim)
+
+    def moments(self, contribution, inputs: tuple, weights=None):
+        """``(value, stderr)`` of the per-path ``contribution(*inputs)``, weighted by ``weights`` or ``.weights``."""
+        return jax.jit(_moments, static_argnums=0)(contribution, inputs, self.weights if weights is None else weights)
+
+    def rerun(self, name: str, values: Sequence[float]):
+        """``(weights, [states])``: the common paths with ``name`` at each value in turn, states ``(N, 2)`` at ``t``.
+
+        Paths not finite at any of the values get zero weight.
+        """
+        ends = []
+        for val in values:
+            s = with_parameters(self.run_scene, {name: val})
+            ends.append(run_paths(s, self.rows, kind=self.method, chunk_size=self.chunk)[:, self.index])
+        return _finite_weights(self.path_weights, *ends)
+
+
+def _sampled(scene, names, estimators, query: Query, method, rows, weights, chunk):
+    """``(value, stderr)`` dicts of the per-path estimators, from one common set of paths."""
+    ctx = _context(scene, names, estimators, query, method, rows, weights, chunk)
+    value, stderr = {}, {}
+    for n in names:
+        value[n], stderr[n] = estimators[n].estimate(ctx, n)
+    return value, stderr
+
+
+def _context(scene, names, estimators, query: Query, method, rows, weights, chunk) -> PathContext:
+    """Run the common paths once (accumulating the score sums ``names``' estimators need) up to ``query.t``."""
     dt = scene.dt
-    scored = [n for n in names if isinstance(estimators[n], LikelihoodRatio)]
-    if "D" in names and isinstance(estimators["D"], NoiseScaling) and scene.model.gamma is not None:
-        if "gamma" not in scored:
-            scored.append("gamma")
-    lr_of = {n: estimators[n] for n in scored if n in estimators and isinstance(estimators[n], LikelihoodRatio)}
-    if "gamma" in scored and "gamma" not in lr_of:
-        lr_of["gamma"] = estimators["D"].gamma
-    k_t = int(round(t / dt))
-    starts = {n: max(0, k_t - int(round(min(window_of(e, scene.model), t) / dt))) for n, e in lr_of.items()}
+    settings = _score_settings(scene, names, estimators)
+    k_t = int(round(query.t / dt))
+    starts = {n: max(0, k_t - int(round(min(window_of(e, scene.model), query.t) / dt))) for n, e in settings.items()}
     times = sorted({k_t} | {k for k in starts.values() if k > 0})
     run_scene = scene.replace(save_at=tuple(k * dt for k in times))
-    score = Score(tuple(scored), dt) if scored else None
+    score = Score(tuple(settings), dt) if settings else None
     out = run_paths(run_scene, rows, kind=method, chunk_size=chunk, accumulate=score)
     states, sums = out if score is not None else (out, None)
     it = times.index(k_t)
-    x, v = states[:, it, 0], states[:, it, 1]
-    w, (x, v) = _finite_weights(weights, x, v)
-    barrier = scene.model.barrier if scene.model.has_barrier else None
+    w, (x, v) = _finite_weights(weights, states[:, it, 0], states[:, it, 1])
+    scores = _centred_scores(scene, settings, sums, w, times, k_t, starts) if score is not None else {}
+    return PathContext(
+        scene=scene,
+        values=query.values,
+        x=x,
+        v=v,
+        weights=w,
+        kern=_sampled_kernel(scene, query, x, v, w),
+        grid_ndim=2 if query.var == "xv" else 1,
+        scores=scores,
+        run_scene=run_scene,
+        index=it,
+        rows=rows,
+        path_weights=weights,
+        method=method,
+        chunk=chunk,
+    )
+
+
+def _score_settings(scene, names, estimators) -> dict:
+    """``{name: LikelihoodRatio}``: scores to accumulate, with a name's own settings, else the first asker's."""
+    asked = [(n, k, e) for n in names for k, e in estimators[n].scores_needed(n, scene).items()]
+    settings = {k: e for n, k, e in asked if k == n}
+    for _, k, e in asked:
+        settings.setdefault(k, e)
+    return settings
+
+
+def _centred_scores(scene, settings: dict, sums, w, times: list, k_t: int, starts: dict) -> dict:
+    """``{name: (N,)}`` scores ``S_i - Sbar`` over each window (zero for zero-weighted paths), per parameter unit.
+
+    ``sums``: ``(N, len(times), 2 len(settings) + 1)`` running sums of :class:`Score` after the steps ``times``;
+    ``k_t``: the step of ``t``; ``starts``: ``{name: step}`` where each window starts (0: the whole history).
+    """
+    D = jnp.asarray(scene.noise.D, scene.float_dtype)
+    total = sums[:, times.index(k_t)]
+    q = jnp.sum(w * total[:, -1]) / jnp.sum(w) / max(k_t, 1)
+    frac = 1.0 - q / (2.0 * D * scene.dt)
+    scores = {}
+    for j, (n, est) in enumerate(settings.items()):
+        a = total - (sums[:, times.index(starts[n])] if starts[n] > 0 else 0.0)
+        c = frac if est.ito_correction else 0.0
+        s_i = (a[:, 2 * j] - c * D * a[:, 2 * j + 1]) / (2.0 * D)
+        s_i = jnp.where(w > 0, s_i, 0.0)
+        scores[n] = s_i - jnp.sum(w * s_i) / jnp.sum(w)
+    return scores
+
+
+def _sampled_kernel(scene, query: Query, x, v, w):
+    """The per-path kernel on ``query.grid`` with the fixed bandwidth (the rule's at the nominal paths for ``None``)."""
+    dtype = scene.float_dtype
+    var, grid, bandwidth = query.var, query.grid, query.bandwidth
     if bandwidth is None:
         dim = 2 if var == "xv" else 1
-        sig = [rule_bandwidth(s, w, rule, dim=dim) for s in ((x, v) if var == "xv" else (x if var == "x" else v,))]
+        samples = (x, v) if var == "xv" else (x if var == "x" else v,)
+        sig = [rule_bandwidth(s, w, query.rule, dim=dim) for s in samples]
         sigma = tuple(sig) if var == "xv" else sig[0]
     else:
         sigma = tuple(bandwidth) if var == "xv" else bandwidth
     g = (jnp.asarray(grid[0], dtype), jnp.asarray(grid[1], dtype)) if var == "xv" else jnp.asarray(grid, dtype)
-    kern = _kernel(var, g, sigma, barrier)
-    scores = {}
-    if score is not None:
-        D = jnp.asarray(scene.noise.D, dtype)
-        total = sums[:, it]
-        q = jnp.sum(w * total[:, -1]) / jnp.sum(w) / max(k_t, 1)
-        frac = 1.0 - q / (2.0 * D * dt)
-        for j, n in enumerate(scored):
-            a = total - (sums[:, times.index(starts[n])] if starts[n] > 0 else 0.0)
-            c = frac if lr_of[n].ito_correction else 0.0
-            s_i = (a[:, 2 * j] - c * D * a[:, 2 * j + 1]) / (2.0 * D)
-            s_i = jnp.where(w > 0, s_i, 0.0)
-            scores[n] = s_i - jnp.sum(w * s_i) / jnp.sum(w)
-    value, stderr = {}, {}
-
-    def moments(contribution, *inputs):
-        return jax.jit(_moments, static_argnums=0)(contribution, inputs, w)
-
-    for n in names:
-        est = estimators[n]
-        if isinstance(est, LikelihoodRatio):
-            value[n], stderr[n] = moments(
-                lambda x, v, s: kern(x, v) * s.reshape((-1,) + (1,) * g_ndim(var)), x, v, scores[n]
-            )
-        elif isinstance(est, NoiseScaling):
-            D = jnp.asarray(scene.noise.D, dtype)
-            gamma = scene.model.gamma
-            sg = scores.get("gamma", jnp.zeros_like(x))
-            gcoef = 0.0 if gamma is None else jnp.asarray(gamma, dtype) / D
-
-            def contribution(x, v, s, D=D, gcoef=gcoef):
-                k, ydk = jax.jvp(kern, (x, v), (x, v))
-                return ydk / (2.0 * D) + gcoef * k * s.reshape((-1,) + (1,) * g_ndim(var))
-
-            value[n], stderr[n] = moments(contribution, x, v, sg)
-        else:
-            value[n], stderr[n] = _central_difference(scene, n, est, kern, run_scene, it, rows, weights, method, chunk)
-    return value, stderr
-
-
-def g_ndim(var: str) -> int:
-    return 2 if var == "xv" else 1
-
-
-def _central_difference(scene, name, est, kern, run_scene, it, rows, weights, method, chunk):
-    lo, hi = est.pair(name, float(_nominal(scene, name)))
-    ends = []
-    for val in (lo, hi):
-        s = with_parameters(run_scene, {name: val})
-        ends.append(run_paths(s, rows, kind=method, chunk_size=chunk)[:, it])
-    w, (a, b) = _finite_weights(weights, ends[0], ends[1])
-    kern_lo = kern
-    if name == "barrier":
-        raise ValueError("CentralDifference with respect to the barrier moves the kernel's reflection: not supported")
-
-    def contribution(xa, va, xb, vb):
-        return (kern(xb, vb) - kern_lo(xa, va)) / (hi - lo)
-
-    return jax.jit(_moments, static_argnums=0)(contribution, (a[:, 0], a[:, 1], b[:, 0], b[:, 1]), w)
+    barrier = scene.model.barrier if scene.model.has_barrier else None
+    return _kernel(var, g, sigma, barrier)
