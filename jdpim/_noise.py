@@ -33,7 +33,13 @@ class WhiteNoise:
         if isinstance(self.D, (list, tuple)):  # one array leaf, not a leaf per entry
             leaves = jax.tree_util.tree_leaves(self.D)
             traced = any(isinstance(x, jax.core.Tracer) for x in leaves)
-            object.__setattr__(self, "D", jnp.asarray(self.D) if traced else np.asarray(self.D, dtype=float))
+            try:
+                arr = jnp.asarray(self.D) if traced else np.asarray(self.D, dtype=float)
+            except (TypeError, ValueError):
+                if any(isinstance(x, (str, bytes)) for x in leaves):
+                    raise TypeError(f"D must be a real number or a matrix of them, got {self.D!r}") from None
+                raise ValueError(f"D must be a scalar or a square (m, m) matrix, got {self.D!r}") from None
+            object.__setattr__(self, "D", arr)
         arr = concrete(self.D)
         if arr is None:
             return

@@ -46,6 +46,7 @@ CONSTRUCTORS = {
     "D-nan": (lambda: jdpim.WhiteNoise(D=NAN), r"D must be finite"),
     "D-not-positive-definite": (lambda: jdpim.WhiteNoise(D=[[1.0, 2.0], [2.0, 1.0]]), r"D must be positive definite"),
     "D-not-symmetric": (lambda: jdpim.WhiteNoise(D=[[1.0, 0.5], [0.2, 1.0]]), r"D must be symmetric"),
+    "D-ragged": (lambda: jdpim.WhiteNoise(D=[[1.0, 0.0], [0.0]]), r"D must be a scalar or a square \(m, m\) matrix"),
     "D-shape": (lambda: jdpim.WhiteNoise(D=[1.0, 2.0]), r"D must be a scalar or a square \(m, m\) matrix"),
     # time grid
     "dt-zero": (lambda: scene(dt=0.0), r"dt must lie in \(0, inf\), got 0\.0"),
@@ -99,8 +100,13 @@ def test_constructor_rejects(case):
 
 @pytest.mark.parametrize(
     "build",
-    [lambda: jdpim.Scene("not a model"), lambda: scene(noise=0.03), lambda: scene(impacts="locate")],
-    ids=["model", "noise", "impacts"],
+    [
+        lambda: jdpim.Scene("not a model"),
+        lambda: scene(noise=0.03),
+        lambda: scene(impacts="locate"),
+        lambda: jdpim.WhiteNoise(D=[["a"]]),
+    ],
+    ids=["model", "noise", "impacts", "D-text-in-matrix"],
 )
 def test_wrong_types_are_rejected(build):
     with pytest.raises(TypeError, match=r"must be"):
