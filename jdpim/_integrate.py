@@ -36,6 +36,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
+from ._constraints import dot, geometry, values
 from ._pytree import check_int, check_real
 
 
@@ -111,25 +112,26 @@ def _forcing(e, tau):
     return l0 * e[0] + lm * e[1] + l1 * e[2]
 
 
-def rk4(model, x, v, e, h, ta=0.0, tb=1.0):
-    """One RK4 step of one path from step fraction ``ta`` to ``tb`` (step length ``h``, seconds)."""
+def rk4(model, q, v, e, h, ta=0.0, tb=1.0):
+    """One RK4 step of one path (``q``, ``v``: ``(d,)``) from step fraction ``ta`` to ``tb`` (step length ``h``, s)."""
     H = (tb - ta) * h
     tm = 0.5 * (ta + tb)
 
-    def f(tau, x, v):
-        return v, model.acceleration(x, v, _forcing(e, tau))
+    def f(tau, q, v):
+        return v, model.state_acceleration(q, v, _forcing(e, tau))
 
-    k1x, k1v = f(ta, x, v)
-    k2x, k2v = f(tm, x + 0.5 * H * k1x, v + 0.5 * H * k1v)
-    k3x, k3v = f(tm, x + 0.5 * H * k2x, v + 0.5 * H * k2v)
-    k4x, k4v = f(tb, x + H * k3x, v + H * k3v)
-    return (x + H / 6.0 * (k1x + 2.0 * k2x + 2.0 * k3x + k4x), v + H / 6.0 * (k1v + 2.0 * k2v + 2.0 * k3v + k4v))
+    k1x, k1v = f(ta, q, v)
+    k2x, k2v = f(tm, q + 0.5 * H * k1x, v + 0.5 * H * k1v)
+    k3x, k3v = f(tm, q + 0.5 * H * k2x, v + 0.5 * H * k2v)
+    k4x, k4v = f(tb, q + H * k3x, v + H * k3v)
+    return (q + H / 6.0 * (k1x + 2.0 * k2x + 2.0 * k3x + k4x), v + H / 6.0 * (k1v + 2.0 * k2v + 2.0 * k3v + k4v))
 
 
-def locate_crossing(x0, v0, x1, v1, H, n_iter):
-    """Root ``s`` in [0, 1] of the cubic Hermite interpolant of ``x - b`` over a step of length ``H``.
+def locate_crossing(x0, v0, x1, v1, H, n_iter, on_barrier=None):
+    """Root ``s`` in [0, 1] of the cubic Hermite interpolant of ``c = x - b`` over a step of length ``H``.
 
-    ``x0 >= 0 > x1`` are positions relative to the barrier; velocities are ``dx/dt``.
+    ``x0 >= 0 > x1`` are the constraint's values ``c`` at the ends, ``v0``, ``v1`` their rates ``dc/dt``;
+    ``on_barrier`` marks steps that start on the constraint (default ``x0 == 0``).
     """
     a0, a1, b0, b1 = x0, x1, H * v0, H * v1
 
@@ -144,7 +146,7 @@ def locate_crossing(x0, v0, x1, v1, H, n_iter):
     # A step that starts on the barrier (after an impact or a departure) must step past the root p(0) = 0:
     # it seeks the root of the deflated quadratic q(s) = p(s) / s (q(0) = b0 >= 0 > q(1) = a1), from its
     # closed-form root; the iterations then only polish it.
-    on_barrier = a0 == 0
+    on_barrier = a0 == 0 if on_barrier is None else on_barrier
     c0, c1, c2 = b0, 3 * a1 - 2 * b0 - b1, b0 - 2 * a1 + b1
 
     def f(s):
@@ -190,14 +192,15 @@ def _bracketed_newton(q, dq, lo, hi, n_iter):
     return s
 
 
-def departure(model, e, tau0, n_iter=5):
-    """First step fraction in ``[tau0, 1]`` where a path at rest on the barrier is pulled off it; 1 if never.
+def departure(model, e, tau0, normal, q_rest, n_iter=5):
+    """First fraction in ``[tau0, 1]`` of the step where a path at rest at ``q_rest`` is pulled off; 1 if never.
 
-    The force at rest, ``F(tau) = a(b, 0, xi(tau))``, is affine in ``xi`` and so exactly the quadratic
-    through its values at ``tau = 0, 1/2, 1``; the path leaves at the first ``tau`` with ``F(tau) > 0``.
+    One degree of freedom: the force along the constraint's normal at rest, ``F(tau) = n a(q_rest, 0, xi(tau))``,
+    is affine in ``xi`` and so exactly the quadratic through its values at ``tau = 0, 1/2, 1``; the path
+    leaves at the first ``tau`` with ``F(tau) > 0``.
     """
-    b = jnp.asarray(model.barrier, e[0].dtype)
-    f = jnp.stack([model.acceleration(b, jnp.zeros_like(b), e[i]) for i in range(3)])
+    rest = jnp.zeros_like(q_rest)
+    f = jnp.stack([dot(normal, model.state_acceleration(q_rest, rest, e[i])) for i in range(3)])
     c0, c1, c2 = f[0], -3.0 * f[0] + 4.0 * f[1] - f[2], 2.0 * f[0] - 4.0 * f[1] + 2.0 * f[2]
 
     def q(tau):
@@ -214,36 +217,53 @@ def departure(model, e, tau0, n_iter=5):
     return jnp.where(q(tau0) > 0, tau0, jnp.where(in_first | (q(1.0) > 0), root, 1.0))
 
 
-def _resolve_one(model, rule: ImpactRule, h, y0, tau0, y1, e):
-    """Resolve the first impact of one path inside ``[tau0, 1]`` of the step, where ``y1`` is beyond it."""
-    b = model.barrier
-    (x0, v0), (x1, v1) = y0, y1
-    hit = x1 < b
-    # Paths without a crossing get harmless stand-in values, so that no NaN reaches a derivative.
-    rx0 = jnp.where(hit, x0 - b, 1.0)
-    rx1 = jnp.where(hit, x1 - b, -1.0)
-    span = (1.0 - tau0) * h
-    s = locate_crossing(rx0, v0, rx1, v1, jnp.where(hit, span, h), rule.newton_iterations)
-    theta = tau0 + s * (1.0 - tau0)
-    _, vc = rk4(model, x0, v0, e, h, tau0, theta)
-    v_plus = model.r * jnp.abs(vc)
-    xr, vr = rk4(model, jnp.asarray(b, x0.dtype), v_plus, e, h, theta, 1.0)
-    if rule.stick_velocity > 0:
-        pushes_in = model.acceleration(b, jnp.zeros_like(v0), _forcing(e, theta)) <= 0
-        stick = (v_plus < rule.stick_velocity) & pushes_in
-        tau_d = departure(model, e, theta)  # rest at (b, 0) until the force pulls away
-        xd, vd = rk4(model, jnp.asarray(b, x0.dtype), jnp.zeros_like(v0), e, h, tau_d, 1.0)
-        xr, vr = jnp.where(stick, xd, xr), jnp.where(stick, vd, vr)
-        v_plus, theta = jnp.where(stick, 0.0, v_plus), jnp.where(stick, tau_d, theta)
-    new_y0 = (jnp.where(hit, b, x0), jnp.where(hit, v_plus, v0))
-    new_y1 = (jnp.where(hit, xr, x1), jnp.where(hit, vr, v1))
-    return new_y0, jnp.where(hit, theta, tau0), new_y1
+def _resolve_one(model, rule: ImpactRule, h, y0, tau0, y1, last, e):
+    """Resolve the first impact of one path inside ``[tau0, 1]`` of the step, where ``y1`` violates a constraint.
+
+    ``y0 = (q, v)`` at ``tau0``, ``y1`` at the step's end, ``last`` the constraint resolved last in this step
+    (-1 for none). Of the violated constraints the one crossed first is located and resolved (the others,
+    if still violated, in later rounds). Returns the new ``(y0, tau0, y1, last)``.
+    """
+    (q0, v0), (q1, v1) = y0, y1
+    geo = geometry(model.stacked_constraints(), q0.dtype)
+    c0, c1 = values(geo, q0), values(geo, q1)
+    crossing = c1 < 0
+    hit = jnp.any(crossing)
+    # Constraints without a crossing get harmless stand-in values, so that no NaN reaches a derivative.
+    rc0 = jnp.where(crossing, c0, 1.0)
+    rc1 = jnp.where(crossing, c1, -1.0)
+    on = crossing & ((c0 == 0) | (jnp.arange(c0.shape[0]) == last))
+    span = jnp.where(crossing, (1.0 - tau0) * h, h)
+    s_all = locate_crossing(rc0, dot(geo.normal, v0), rc1, dot(geo.normal, v1), span, rule.newton_iterations, on)
+    j = jnp.argmin(jnp.where(crossing, s_all, 2.0)).astype(jnp.int32)
+    normal, position, r, push, onto, unit, keep, _ = (a[j] for a in geo)
+    theta = tau0 + s_all[j] * (1.0 - tau0)
+    qc, vc = rk4(model, q0, v0, e, h, tau0, theta)
+    q_plus = dot(onto, qc) + position * unit  # on the plane c_j = 0
+    v_plus = dot(keep, vc) + r * jnp.abs(dot(normal, vc)) * push  # generalised Newton law
+    qr, vr = rk4(model, q_plus, v_plus, e, h, theta, 1.0)
+    if rule.stick_velocity > 0 and q0.shape[0] == 1:  # one degree of freedom: rest on the constraint
+        rest = jnp.zeros_like(v0)
+        pushes_in = dot(normal, model.state_acceleration(q_plus, rest, _forcing(e, theta))) <= 0
+        stick = (r * jnp.abs(dot(normal, vc)) < rule.stick_velocity) & pushes_in
+        tau_d = departure(model, e, theta, normal, q_plus)  # rest at (q_plus, 0) until the force pulls away
+        qd, vd = rk4(model, q_plus, rest, e, h, tau_d, 1.0)
+        qr, vr = jnp.where(stick, qd, qr), jnp.where(stick, vd, vr)
+        v_plus, theta = jnp.where(stick, rest, v_plus), jnp.where(stick, tau_d, theta)
+    new_y0 = (jnp.where(hit, q_plus, q0), jnp.where(hit, v_plus, v0))
+    new_y1 = (jnp.where(hit, qr, q1), jnp.where(hit, vr, v1))
+    return new_y0, jnp.where(hit, theta, tau0), new_y1, jnp.where(hit, j, last)
 
 
-def _mirror(model, x, v):
-    b = model.barrier
-    beyond = x < b
-    return jnp.where(beyond, 2 * b - x, x), jnp.where(beyond, -model.r * v, v)
+def _mirror(model, q, v):
+    """Reflect ``(q, v)`` through every constraint it violates (in order): ``c -> -c``, ``u -> -r u``."""
+    geo = geometry(model.stacked_constraints(), q.dtype)
+    for j in range(geo.normal.shape[0]):
+        beyond = dot(geo.normal[j], q) - geo.position[j] < 0
+        q_new = dot(geo.flip[j], q) + 2.0 * geo.position[j] * geo.unit[j]
+        v_new = dot(geo.keep[j], v) - geo.r[j] * dot(geo.normal[j], v) * geo.push[j]
+        q, v = jnp.where(beyond, q_new, q), jnp.where(beyond, v_new, v)
+    return q, v
 
 
 def first_in_lanes(mask, lanes: int):
@@ -269,15 +289,20 @@ def _scatter(idx, tree, rows):
     return jax.tree_util.tree_map(lambda a, b: a.at[idx].set(b, mode="drop"), tree, rows)
 
 
-def stiffness_rate(model, x, v, xi):
-    """``rho = |da/dv| + sqrt(|da/dx|)`` of one path (1/s): a bound on the local Jacobian's spectral radius."""
-    a_x = jax.jvp(lambda x: model.acceleration(x, v, xi), (x,), (jnp.ones_like(x),))[1]
-    a_v = jax.jvp(lambda v: model.acceleration(x, v, xi), (v,), (jnp.ones_like(v),))[1]
-    return jnp.abs(a_v) + jnp.sqrt(jnp.abs(a_x))
+def stiffness_rate(model, q, v, xi):
+    """``rho = |da/dv| + sqrt(|da/dq|)`` of one path (1/s; infinity norms): bounds the Jacobian's spectral radius."""
+    a_q = jax.jacfwd(lambda q: model.state_acceleration(q, v, xi))(q)
+    a_v = jax.jacfwd(lambda v: model.state_acceleration(q, v, xi))(v)
+    return jnp.max(jnp.sum(jnp.abs(a_v), axis=1)) + jnp.sqrt(jnp.max(jnp.sum(jnp.abs(a_q), axis=1)))
+
+
+def _paths(mask, a):
+    """``mask`` ``(n,)`` broadcast against the per-path array ``a`` ``(n, ...)``."""
+    return jnp.reshape(mask, mask.shape + (1,) * (a.ndim - 1))
 
 
 def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None = None):
-    """The step for a batch of paths: ``(x, v, e, rand) -> (x, v)``, each ``(n,)``.
+    """The step for a batch of paths: ``(q, v, e, rand) -> (q, v)``, ``q`` and ``v`` each ``(n, d)``.
 
     ``e`` is the forcing at the start, middle and end of the step: a tuple of three ``(n, m)`` arrays
     (or one ``(n, 3, m)`` array).
@@ -288,21 +313,34 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
     step as sub-steps of its own (see :class:`Substeps`).
     """
     shared = path_model(None)
-    sticking = shared.has_barrier and rule.method == "locate" and rule.stick_velocity > 0
+    constrained = shared.stacked_constraints() is not None
+    sticking = constrained and rule.method == "locate" and rule.stick_velocity > 0 and shared.dimension == 1
 
-    def free(x, v, e, rand, tau0, h):
-        return rk4(path_model(rand), x, v, e, h, tau0, 1.0)
+    def free(q, v, e, rand, tau0, h):
+        return rk4(path_model(rand), q, v, e, h, tau0, 1.0)
 
-    def resolve(y0, tau0, y1, e, rand, h):
-        return _resolve_one(path_model(rand), rule, h, y0, tau0, y1, e)
+    def resolve(y0, tau0, y1, last, e, rand, h):
+        return _resolve_one(path_model(rand), rule, h, y0, tau0, y1, last, e)
 
-    def mirror(x, v, rand):
-        return _mirror(path_model(rand), x, v)
+    def mirror(q, v, rand):
+        return _mirror(path_model(rand), q, v)
 
-    def start_fraction(x, v, e, rand):
-        """0, or for a path at rest on the barrier the fraction at which the force pulls it off."""
+    def constraint_values(q, rand):
+        """``c_j(q)`` of one path's constraints, ``(J,)``."""
+        return values(geometry(path_model(rand).stacked_constraints(), q.dtype), q)
+
+    def violates(q, rand):
+        return jnp.any(constraint_values(q, rand) < 0)
+
+    def rests(q, v, rand):
+        return jnp.any(constraint_values(q, rand) == 0) & jnp.all(v == 0)
+
+    def start_fraction(q, v, e, rand):
+        """0, or for a path at rest on a constraint the fraction at which the force pulls it off."""
         model = path_model(rand)
-        return jnp.where((x == model.barrier) & (v == 0), departure(model, e, 0.0), 0.0)
+        geo = geometry(model.stacked_constraints(), q.dtype)
+        normal = geo.normal[jnp.argmax(values(geo, q) == 0)]
+        return jnp.where(rests(q, v, rand), departure(model, e, 0.0, normal, q), 0.0)
 
     def per_path(fn, h):
         """``fn(..., h=)`` vmapped over the paths, with a step length ``h`` shared (scalar) or per path ``(n,)``."""
@@ -310,9 +348,9 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
             return jax.vmap(functools.partial(fn, h=h))
         return lambda *args: jax.vmap(lambda *a: fn(*a[:-1], h=a[-1]))(*args, h)
 
-    def resolve_crossings(state, e, rand, barrier, h):
+    def resolve_crossings(state, e, rand, h):
         """Every located impact of the step, in rounds: the paths are split into ``cap`` lanes of ``G = ceil(n / cap)``,
-        and each round gathers the first path of every lane that still ends beyond the barrier after fewer than
+        and each round gathers the first path of every lane that still ends beyond a constraint after fewer than
         ``max_impacts`` resolutions, resolves one impact of each and scatters them back.
 
         ``max_impacts * G`` rounds suffice for any step: a round serves every lane with a pending path, and a
@@ -321,12 +359,12 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
         are skipped once no path is pending: the resolution is traced once, and a step whose crossings fit in
         one round passes ``depth`` skipped subtrees.
         """
-        n = barrier.shape[0]
+        n = rand.shape[0]
         cap = max(1, -(-n // 64))
         depth = (rule.max_impacts * -(-n // cap) - 1).bit_length()
 
         def pending(state, count):
-            return (state[2][0] < barrier) & (count < rule.max_impacts)
+            return jax.vmap(violates)(state[2][0], rand) & (count < rule.max_impacts)
 
         def one_round(carry):
             state, count, _ = carry
@@ -350,30 +388,28 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
         count = jnp.zeros(n, jnp.int32)
         return rounds((state, count, jnp.any(pending(state, count))), depth)[0]
 
-    def plain_step(x, v, e, rand, h):
+    def plain_step(q, v, e, rand, h):
         """One step of every path; ``h`` is the step length, shared (scalar) or per path ``(n,)``."""
-        tau0 = jnp.zeros_like(x)
-        if shared.has_barrier:
-            barrier = jax.vmap(lambda r: jnp.asarray(path_model(r).barrier, x.dtype))(rand)
+        tau0 = jnp.zeros(q.shape[:1], q.dtype)
         if sticking:
-            resting = (x == barrier) & (v == 0)
-            tau0 = jax.lax.cond(jnp.any(resting), lambda: jax.vmap(start_fraction)(x, v, e, rand), lambda: tau0)
-        x1, v1 = per_path(free, h)(x, v, e, rand, tau0)
-        if not shared.has_barrier:
-            return x1, v1
+            resting = jnp.any(jax.vmap(rests)(q, v, rand))
+            tau0 = jax.lax.cond(resting, lambda: jax.vmap(start_fraction)(q, v, e, rand), lambda: tau0)
+        q1, v1 = per_path(free, h)(q, v, e, rand, tau0)
+        if not constrained:
+            return q1, v1
         if rule.method == "locate":
-            state = ((x, v), tau0, (x1, v1))
-            x1, v1 = resolve_crossings(state, e, rand, barrier, h)[2]
-        return jax.vmap(mirror)(x1, v1, rand)
+            state = ((q, v), tau0, (q1, v1), jnp.full(q.shape[:1], -1, jnp.int32))
+            q1, v1 = resolve_crossings(state, e, rand, h)[2]
+        return jax.vmap(mirror)(q1, v1, rand)
 
     if substeps is None or substeps.max_substeps == 1 or not shared.may_be_stiff:
         return functools.partial(plain_step, h=h)
 
     n_max = substeps.max_substeps
 
-    def needed(x, v, e, rand, node):
-        """Sub-steps one path needs at ``(x, v)`` under its forcing node ``e[node]`` (``n_max`` if not finite)."""
-        k = jnp.ceil(h * stiffness_rate(path_model(rand), x, v, e[node]) / substeps.limit)
+    def needed(q, v, e, rand, node):
+        """Sub-steps one path needs at ``(q, v)`` under its forcing node ``e[node]`` (``n_max`` if not finite)."""
+        k = jnp.ceil(h * stiffness_rate(path_model(rand), q, v, e[node]) / substeps.limit)
         return jnp.clip(jnp.where(jnp.isfinite(k), k, n_max), 1, n_max).astype(jnp.int32)
 
     def sub_forcing(e, ta, tb):
@@ -391,12 +427,12 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
         ta, tb = jnp.where(active, i / kf, 0.0), jnp.where(active, (i + 1) / kf, 0.0)
         sub_e = jax.vmap(sub_forcing)(e, ta, tb)
         new = plain_step(*y, sub_e, rand, jnp.where(active, h / kf, 0.0))
-        return tuple(jnp.where(active, a, b) for a, b in zip(new, y, strict=True))
+        return tuple(jnp.where(_paths(active, a), a, b) for a, b in zip(new, y, strict=True))
 
-    def step(x, v, e, rand):
-        start = (x, v)
-        finite = jnp.isfinite(x) & jnp.isfinite(v)
-        k_start = jax.vmap(functools.partial(needed, node=0))(x, v, e, rand)
+    def step(q, v, e, rand):
+        start = (q, v)
+        finite = jnp.all(jnp.isfinite(q), axis=1) & jnp.all(jnp.isfinite(v), axis=1)
+        k_start = jax.vmap(functools.partial(needed, node=0))(q, v, e, rand)
 
         def body(i, carry):
             # iteration 0: every path's full step (its trial); then the paths that need it redo the
@@ -419,7 +455,7 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
         trial, y, k = jax.lax.fori_loop(
             0, n_max + 1, lambda i, c: jax.lax.cond(active(i, c), body, lambda i, c: c, i, c), (start, start, k_start)
         )
-        return tuple(jnp.where(k > 1, a, b) for a, b in zip(y, trial, strict=True))
+        return tuple(jnp.where(_paths(k > 1, a), a, b) for a, b in zip(y, trial, strict=True))
 
     return step
 
@@ -428,7 +464,7 @@ def integrate(
     path_model,
     rule: ImpactRule,
     h: float,
-    x0,
+    q0,
     v0,
     excitation,
     rand,
@@ -444,20 +480,20 @@ def integrate(
         path_model: ``rand -> model`` for one path (``rand=None`` gives the shared model).
         rule: impact settings.
         h: time step, s.
-        x0, v0: initial states, shape ``(n,)``.
+        q0, v0: initial coordinates and velocities, shape ``(n, d)``.
         excitation: ``xi`` on the half-step grid, time-major, shape ``(2 T + 1, n, m)``.
         rand: random parameters per path, shape ``(n, n_random)``.
         slots: shape ``(T,)`` int: the save slot written after each step (``n_save`` = none).
         n_save: number of saved times. Slot ``n_save`` is a scratch row.
         initial_slot: the save slot of ``t = 0`` (``n_save`` if not saved).
         substeps: sub-stepping of stiff steps, or ``None`` for none.
-        accumulate: ``None``, or ``(model, x, v, dw) -> (k,)`` for one path: the increments of ``k``
-            running sums ``A``, from the state ``(x, v)`` at the start of each step and its noise
-            increment ``dw = h/6 (e_0 + 4 e_1/2 + e_1)`` (shape ``(m,)``, Simpson's rule of the forcing).
+        accumulate: ``None``, or ``(model, q, v, dw) -> (k,)`` for one path: the increments of ``k``
+            running sums ``A``, from the state ``(q, v)`` (each ``(d,)``) at the start of each step and its
+            noise increment ``dw = h/6 (e_0 + 4 e_1/2 + e_1)`` (shape ``(m,)``, Simpson's rule of the forcing).
             ``A(0) = 0``; ``A`` is stored at the save slots like the states.
 
     Returns:
-        shape ``(n, n_save, 2)``: ``(x, v)`` at the saved times; with ``accumulate`` the pair
+        shape ``(n, n_save, 2 d)``: ``(q, v)`` at the saved times; with ``accumulate`` the pair
         ``(states, sums)``, ``sums`` of shape ``(n, n_save, k)``.
     """
     step = jax.checkpoint(make_batch_step(path_model, rule, h, substeps))
@@ -469,30 +505,31 @@ def integrate(
         return tuple(jax.lax.dynamic_index_in_dim(excitation, 2 * k + i, keepdims=False) for i in range(3))
 
     def body(carry, inputs):
-        x, v, buf = carry
+        q, v, buf = carry
         k, slot = inputs
-        x, v = step(x, v, nodes(k), rand)
-        buf = jax.lax.dynamic_update_index_in_dim(buf, jnp.stack([x, v], axis=-1), slot, axis=0)
-        return (x, v, buf), None
+        q, v = step(q, v, nodes(k), rand)
+        buf = jax.lax.dynamic_update_index_in_dim(buf, jnp.concatenate([q, v], axis=-1), slot, axis=0)
+        return (q, v, buf), None
 
-    buf = jnp.zeros((n_save + 1, n, 2), dtype=x0.dtype).at[initial_slot].set(jnp.stack([x0, v0], axis=-1))
+    d = q0.shape[1]
+    buf = jnp.zeros((n_save + 1, n, 2 * d), dtype=q0.dtype).at[initial_slot].set(jnp.concatenate([q0, v0], axis=-1))
     if accumulate is None:
-        (x, v, buf), _ = jax.lax.scan(body, (x0, v0, buf), (jnp.arange(T), slots))
+        (q, v, buf), _ = jax.lax.scan(body, (q0, v0, buf), (jnp.arange(T), slots))
         return jnp.moveaxis(buf[:n_save], 0, 1)
 
-    def increments(x, v, e, r):
+    def increments(q, v, e, r):
         dw = h / 6.0 * (e[0] + 4.0 * e[1] + e[2])
-        return accumulate(path_model(r), x, v, dw)
+        return accumulate(path_model(r), q, v, dw)
 
     def body_with_sums(carry, inputs):
-        (x, v, buf), sums, sums_buf = carry
-        sums = sums + jax.vmap(increments)(x, v, nodes(inputs[0]), rand)
+        (q, v, buf), sums, sums_buf = carry
+        sums = sums + jax.vmap(increments)(q, v, nodes(inputs[0]), rand)
         sums_buf = jax.lax.dynamic_update_index_in_dim(sums_buf, sums, inputs[1], axis=0)
-        return (body((x, v, buf), inputs)[0], sums, sums_buf), None
+        return (body((q, v, buf), inputs)[0], sums, sums_buf), None
 
-    k = jax.eval_shape(increments, x0[0], v0[0], tuple(excitation[i, 0] for i in range(3)), rand[0]).shape[0]
-    sums = jnp.zeros((n, k), x0.dtype)
-    init = ((x0, v0, buf), sums, jnp.zeros((n_save + 1, n, k), x0.dtype))
+    k = jax.eval_shape(increments, q0[0], v0[0], tuple(excitation[i, 0] for i in range(3)), rand[0]).shape[0]
+    sums = jnp.zeros((n, k), q0.dtype)
+    init = ((q0, v0, buf), sums, jnp.zeros((n_save + 1, n, k), q0.dtype))
     ((_, _, buf), _, sums_buf), _ = jax.lax.scan(body_with_sums, init, (jnp.arange(T), slots))
     return jnp.moveaxis(buf[:n_save], 0, 1), jnp.moveaxis(sums_buf[:n_save], 0, 1)
 
