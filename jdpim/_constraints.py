@@ -14,16 +14,18 @@ from __future__ import annotations
 from typing import Any, NamedTuple
 
 import jax.numpy as jnp
+import numpy as np
 
 
 class Constraints(NamedTuple):
     """The constraints of one path's model, stacked (``J`` constraints, ``d`` coordinates).
 
     Attributes:
-        normal: ``(J, d)``: the normals ``n_j``.
-        position: ``(J,)``: the offsets ``b_j`` (units of ``q``).
-        r: ``(J,)``: the restitutions in [0, 1].
-        push: ``(J, d)``: ``M^-1 n_j / (n_j . M^-1 n_j)``, the velocity change per unit change of ``n_j . v``.
+        normal: ``(J, d)`` NumPy array (static): the normals ``n_j``.
+        position: ``(J,)``: the offsets ``b_j`` (units of ``q``; may be traced).
+        r: ``(J,)``: the restitutions in [0, 1] (may be traced).
+        push: ``(J, d)`` NumPy array (static): ``M^-1 n_j / (n_j . M^-1 n_j)``, the velocity change per unit
+            change of ``n_j . v``.
     """
 
     normal: Any
@@ -39,6 +41,8 @@ class Geometry(NamedTuple):
     ``c_j = 0`` (``onto_j q + b_j unit_j``); ``keep_j = I - push_j n_j^T`` keeps the velocity the constraint
     does not see; ``flip_j = I - 2 n_j n_j^T / |n_j|^2`` mirrors a point through the plane. For one
     coordinate (``n = 1``) these are ``0, 1, 0, -1``: the maps reduce exactly to ``x = b``, ``v = -r v``.
+    The maps are NumPy constants (normals and masses are static), so that :func:`dot` drops their zero
+    and unit coefficients when it traces.
     """
 
     normal: Any
@@ -52,13 +56,16 @@ class Geometry(NamedTuple):
 
 
 def geometry(constraints: Constraints, dtype) -> Geometry:
-    """The integrator's view of ``constraints`` in ``dtype``."""
-    n, b, r, push = (jnp.asarray(a, dtype) for a in constraints)
-    eye = jnp.eye(n.shape[1], dtype=dtype)[None]
-    unit = n / jnp.sum(n * n, axis=1, keepdims=True)
+    """The integrator's view of ``constraints`` in ``dtype`` (the maps computed in float64, then rounded)."""
+    n, push = np.asarray(constraints.normal, np.float64), np.asarray(constraints.push, np.float64)
+    eye = np.eye(n.shape[1])[None]
+    unit = n / np.sum(n * n, axis=1, keepdims=True)
     outer = n[:, :, None] * unit[:, None, :]
     keep = eye - push[:, :, None] * n[:, None, :]
-    return Geometry(n, b, r, push, eye - outer, unit, keep, eye - 2.0 * outer)
+    b, r = jnp.asarray(constraints.position, dtype), jnp.asarray(constraints.r, dtype)
+    maps = (np.asarray(a, dtype) for a in (n, push, eye - outer, unit, keep, eye - 2.0 * outer))
+    n, push, onto, unit, keep, flip = maps
+    return Geometry(n, b, r, push, onto, unit, keep, flip)
 
 
 def values(geo: Geometry, q):
@@ -67,6 +74,22 @@ def values(geo: Geometry, q):
 
 
 def dot(a, b):
-    """``sum(a * b)`` over the last axis, leading axes broadcast (fused by XLA; a tiny ``jnp.dot`` is a call)."""
-    a, b = jnp.broadcast_arrays(a, b)
-    return jnp.sum(a * b, axis=-1)
+    """``sum(a * b)`` over the last axis, leading axes broadcast; ``a`` a NumPy constant or an array.
+
+    Written out as multiply-adds for up to 8 terms (elementwise code that XLA fuses with its neighbours; a
+    reduction or a tiny ``jnp.dot`` is a kernel of its own). A constant ``a`` whose column is all zeros drops
+    that term and one of all ones drops the multiplication, so that one coordinate with the normal ``(1,)``
+    traces the scalar arithmetic ``x - b``, ``-r v`` and nothing more.
+    """
+    if not isinstance(a, np.ndarray):
+        a, b = jnp.broadcast_arrays(a, b)
+    if a.shape[-1] > 8:
+        return jnp.sum(a * b, axis=-1)
+    shape = np.broadcast_shapes(np.shape(a), np.shape(b))[:-1]
+    out = None
+    for i in range(a.shape[-1]):
+        if isinstance(a, np.ndarray) and not np.any(a[..., i]):
+            continue
+        term = b[..., i] if isinstance(a, np.ndarray) and np.all(a[..., i] == 1) else a[..., i] * b[..., i]
+        out = term if out is None else out + term
+    return jnp.zeros(shape, b.dtype) if out is None else jnp.broadcast_to(out, shape)

@@ -1,29 +1,34 @@
-r"""Batched RK4 over time with impacts located inside the step.
+r"""Batched RK4 over time with impacts located inside the step, on state vectors ``(q, v)`` with constraints.
 
 Every step of every path is one classical RK4 step ``t_n -> t_n + h`` whose forcing is the quadratic
-through the excitation at ``t_n``, ``t_n + h/2`` and ``t_n + h`` (exactly RK4's stage values). Where the
-step ends beyond the barrier (``x_{n+1} < b``) the impact is located and resolved:
+through the excitation at ``t_n``, ``t_n + h/2`` and ``t_n + h`` (exactly RK4's stage values). A path's
+state is ``q``, ``v`` of shape ``(d,)``; its model's unilateral constraints ``c_j(q) = n_j . q - b_j >= 0``
+(one for a single-degree-of-freedom oscillator with a barrier: ``x - b >= 0``) are stacked by
+:mod:`._constraints`. Where the step ends with a constraint violated the impact is located and resolved:
 
-1. ``s``: root of the cubic Hermite interpolant of ``(x_n, v_n, x_{n+1}, v_{n+1})``, by a bracketed
-   Newton iteration with a fixed number of steps and one final plain Newton step (so that derivatives
-   follow the implicit function theorem and carry the event-time shift: the saltation matrix);
-2. redo the step as ``RK4(s h)`` -> reset ``v <- -r v``, ``x <- b`` -> ``RK4((1 - s) h)``;
-3. repeat for up to ``max_impacts`` impacts in one step, then fall back to a mirror
-   ``(x, v) <- (2b - x, -r v)``, so that no stored state lies beyond the barrier;
-4. sticking: when the outgoing speed ``r |v_-|`` is below ``stick_velocity`` and the force at
-   ``(b, 0)`` pushes into the barrier, the path rests at ``(b, 0)`` until the force (a quadratic in
-   the step fraction) turns outward; that departure time is located inside the step, and a path that
-   starts a step at rest with an inward force waits for it too. This holds for every ``r`` (with
-   ``r = 1`` a path pressed against the barrier at rest makes bounces of zero height: it rests too).
-5. stiffness: a path whose local rate ``rho = |da/dv| + sqrt(|da/dx|)`` at the start of a step, or at
+1. ``s``: root of the cubic Hermite interpolant of each violated ``c_j`` (its values and rates at both ends),
+   by a bracketed Newton iteration with a fixed number of steps and one final plain Newton step (so that
+   derivatives follow the implicit function theorem and carry the event-time shift: the saltation
+   matrix); the constraint crossed first is resolved;
+2. redo the step as ``RK4(s h)`` -> impact (``q`` onto ``c_j = 0``, the generalised Newton law
+   ``v+ = v- - (1 + r_j) (n_j . v-) M^-1 n_j / (n_j . M^-1 n_j)``; ``x = b``, ``v = -r v`` for one
+   coordinate) -> ``RK4((1 - s) h)``;
+3. repeat for up to ``max_impacts`` impacts in one step, then fall back to a mirror through every violated
+   constraint (``c -> -c``, ``n . v -> -r n . v``), so that no stored state violates a constraint;
+4. sticking (one degree of freedom): when the outgoing speed ``r |v_-|`` is below ``stick_velocity`` and
+   the force at ``(b, 0)`` pushes into the barrier, the path rests at ``(b, 0)`` until the force (a
+   quadratic in the step fraction) turns outward; that departure time is located inside the step, and a
+   path that starts a step at rest with an inward force waits for it too. This holds for every ``r``
+   (with ``r = 1`` a path pressed against the barrier at rest makes bounces of zero height: it rests too).
+5. stiffness: a path whose local rate ``rho = |da/dv| + sqrt(|da/dq|)`` at the start of a step, or at
    the end of its full step, exceeds ``limit / h`` redoes that step as
    ``k = min(max_substeps, ceil(h rho / limit))`` equal sub-steps of its own (see :class:`Substeps`).
 
-Only the crossing paths do the impact work, in rounds: the paths are split into ``ceil(n / 64)`` lanes, and
-each round gathers the first path of every lane that still ends beyond the barrier, resolves one impact of
-each and scatters them back. The rounds run in loops of static trip count whose iterations are skipped
-(``lax.cond``) once no path is pending, so the resolution (and its sticking logic) is traced once whatever
-``max_impacts``, and a step without any crossing in the batch skips all of it. The ``"mirror"`` method is
+Only the crossing paths do the impact work, in batches of up to ``ceil(n / 64)`` paths gathered in one
+piece, each path's impacts resolved on the batch's small arrays and scattered back (see
+``resolve_crossings`` in :func:`make_batch_step`); the loops have static trip counts and skip their
+iterations (``lax.cond``) once no path is pending, so the resolution is traced once whatever
+``max_impacts``, and a step without any crossing skips all of it. The ``"mirror"`` method is
 the first-order "flip after the step" rule, kept for comparison.
 """
 
@@ -31,6 +36,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import itertools
 from typing import Any
 
 import jax
@@ -222,22 +228,23 @@ def _resolve_one(model, rule: ImpactRule, h, y0, tau0, y1, last, e):
 
     ``y0 = (q, v)`` at ``tau0``, ``y1`` at the step's end, ``last`` the constraint resolved last in this step
     (-1 for none). Of the violated constraints the one crossed first is located and resolved (the others,
-    if still violated, in later rounds). Returns the new ``(y0, tau0, y1, last)``.
+    if still violated, by the next calls). Returns the new ``(y0, tau0, y1, last)``.
     """
     (q0, v0), (q1, v1) = y0, y1
     geo = geometry(model.stacked_constraints(), q0.dtype)
     c0, c1 = values(geo, q0), values(geo, q1)
     crossing = c1 < 0
-    hit = jnp.any(crossing)
+    one = c0.shape[0] == 1  # one constraint: no reductions over constraints (each one a kernel of its own in XLA)
+    hit = crossing[0] if one else jnp.any(crossing)
     # Constraints without a crossing get harmless stand-in values, so that no NaN reaches a derivative.
     rc0 = jnp.where(crossing, c0, 1.0)
     rc1 = jnp.where(crossing, c1, -1.0)
     on = crossing & ((c0 == 0) | (jnp.arange(c0.shape[0]) == last))
     span = jnp.where(crossing, (1.0 - tau0) * h, h)
     s_all = locate_crossing(rc0, dot(geo.normal, v0), rc1, dot(geo.normal, v1), span, rule.newton_iterations, on)
-    j = jnp.argmin(jnp.where(crossing, s_all, 2.0)).astype(jnp.int32)
-    normal, position, r, push, onto, unit, keep, _ = (a[j] for a in geo)
-    theta = tau0 + s_all[j] * (1.0 - tau0)
+    j = jnp.zeros((), jnp.int32) if one else jnp.argmin(jnp.where(crossing, s_all, 2.0)).astype(jnp.int32)
+    normal, position, r, push, onto, unit, keep, _ = (_pick(a, j) for a in geo)
+    theta = tau0 + _pick(s_all, j) * (1.0 - tau0)
     qc, vc = rk4(model, q0, v0, e, h, tau0, theta)
     q_plus = dot(onto, qc) + position * unit  # on the plane c_j = 0
     v_plus = dot(keep, vc) + r * jnp.abs(dot(normal, vc)) * push  # generalised Newton law
@@ -253,6 +260,15 @@ def _resolve_one(model, rule: ImpactRule, h, y0, tau0, y1, last, e):
     new_y0 = (jnp.where(hit, q_plus, q0), jnp.where(hit, v_plus, v0))
     new_y1 = (jnp.where(hit, qr, q1), jnp.where(hit, vr, v1))
     return new_y0, jnp.where(hit, theta, tau0), new_y1, jnp.where(hit, j, last)
+
+
+def _pick(a, j):
+    """``a[j]`` for a traced ``j``: a masked sum (elementwise for XLA, where a gather per path is slow); ``a[0]``
+    when there is one constraint."""
+    if a.shape[0] == 1:
+        return a[0]
+    mask = jnp.reshape(jnp.arange(a.shape[0]) == j, (-1,) + (1,) * (a.ndim - 1))
+    return jnp.sum(jnp.where(mask, a, 0), axis=0)
 
 
 def _mirror(model, q, v):
@@ -279,16 +295,6 @@ def first_in_lanes(mask, lanes: int):
     return jnp.where(jnp.any(runs, axis=1), jnp.arange(lanes) * group + jnp.argmax(runs, axis=1), n)
 
 
-def _gather(idx, tree):
-    """Rows ``idx`` of every array in ``tree`` (indices past the end give the last row: padding)."""
-    return jax.tree_util.tree_map(lambda a: a.at[idx].get(mode="clip"), tree)
-
-
-def _scatter(idx, tree, rows):
-    """``tree`` with rows ``idx`` replaced by ``rows`` (indices past the end are dropped: padding)."""
-    return jax.tree_util.tree_map(lambda a, b: a.at[idx].set(b, mode="drop"), tree, rows)
-
-
 def stiffness_rate(model, q, v, xi):
     """``rho = |da/dv| + sqrt(|da/dq|)`` of one path (1/s; infinity norms): bounds the Jacobian's spectral radius."""
     a_q = jax.jacfwd(lambda q: model.state_acceleration(q, v, xi))(q)
@@ -308,8 +314,8 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
     (or one ``(n, 3, m)`` array).
 
     ``path_model(rand)`` builds one path's model from its random-parameter vector. Impacts are resolved
-    on the crossing paths only, in rounds of up to ``ceil(n / 64)`` of them (one per lane) gathered, resolved
-    and scattered back. With ``substeps`` (and a model that may be stiff) each path that needs it takes the
+    on the crossing paths only, in batches of up to ``ceil(n / 64)`` of them gathered, resolved and
+    scattered back. With ``substeps`` (and a model that may be stiff) each path that needs it takes the
     step as sub-steps of its own (see :class:`Substeps`).
     """
     shared = path_model(None)
@@ -318,6 +324,9 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
 
     def free(q, v, e, rand, tau0, h):
         return rk4(path_model(rand), q, v, e, h, tau0, 1.0)
+
+    def free_from_start(q, v, e, rand, h):
+        return rk4(path_model(rand), q, v, e, h)  # fractions 0 and 1: no interpolation of the forcing
 
     def resolve(y0, tau0, y1, last, e, rand, h):
         return _resolve_one(path_model(rand), rule, h, y0, tau0, y1, last, e)
@@ -330,16 +339,19 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
         return values(geometry(path_model(rand).stacked_constraints(), q.dtype), q)
 
     def violates(q, rand):
-        return jnp.any(constraint_values(q, rand) < 0)
+        c = constraint_values(q, rand)
+        return c[0] < 0 if c.shape[0] == 1 else jnp.any(c < 0)
 
     def rests(q, v, rand):
-        return jnp.any(constraint_values(q, rand) == 0) & jnp.all(v == 0)
+        c = constraint_values(q, rand)
+        on = c[0] == 0 if c.shape[0] == 1 else jnp.any(c == 0)
+        return on & (v[0] == 0 if v.shape[0] == 1 else jnp.all(v == 0))
 
     def start_fraction(q, v, e, rand):
         """0, or for a path at rest on a constraint the fraction at which the force pulls it off."""
         model = path_model(rand)
         geo = geometry(model.stacked_constraints(), q.dtype)
-        normal = geo.normal[jnp.argmax(values(geo, q) == 0)]
+        normal = _pick(geo.normal, jnp.argmax(values(geo, q) == 0))
         return jnp.where(rests(q, v, rand), departure(model, e, 0.0, normal, q), 0.0)
 
     def per_path(fn, h):
@@ -348,58 +360,93 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
             return jax.vmap(functools.partial(fn, h=h))
         return lambda *args: jax.vmap(lambda *a: fn(*a[:-1], h=a[-1]))(*args, h)
 
-    def resolve_crossings(state, e, rand, h):
-        """Every located impact of the step, in rounds: the paths are split into ``cap`` lanes of ``G = ceil(n / cap)``,
-        and each round gathers the first path of every lane that still ends beyond a constraint after fewer than
-        ``max_impacts`` resolutions, resolves one impact of each and scatters them back.
+    def resolve_crossings(y0, tau0, y1, e, rand, h):
+        """Every located impact of the step: ``y1`` with each crossing path's impacts resolved.
 
-        ``max_impacts * G`` rounds suffice for any step: a round serves every lane with a pending path, and a
-        lane's ``G`` paths need at most ``max_impacts`` resolutions each. ``2**depth`` rounds run as a binary
-        tree of ``fori_loop`` of two iterations (static trip counts, so reverse-mode AD works) whose subtrees
-        are skipped once no path is pending: the resolution is traced once, and a step whose crossings fit in
-        one round passes ``depth`` skipped subtrees.
+        The crossing paths are served in batches of up to ``cap = ceil(n / 64)``: the paths are split into
+        ``cap`` lanes of ``G = ceil(n / cap)``, and a batch takes the first crossing path of every lane that
+        has one, gathered in one piece (every per-path input packed in the columns of one array), resolves
+        up to ``max_impacts`` impacts of each on these few rows, and scatters their end states back. Every
+        loop that runs on the batch touches only its small arrays, and every loop level over batches has a
+        few operations in a chain, so XLA's CPU runtime runs them inline rather than handing them to its
+        thread pool (which costs more than the work).
+
+        ``G`` batches serve any step; ``2**depth >= G`` of them run as a binary tree of ``fori_loop`` of two
+        iterations (static trip counts, so reverse-mode AD works) whose subtrees are skipped once no path is
+        pending: the resolution is traced once, and a step whose crossings fit in one batch passes ``depth``
+        skipped subtrees.
         """
-        n = rand.shape[0]
+        n, d = y0[0].shape
         cap = max(1, -(-n // 64))
-        depth = (rule.max_impacts * -(-n // cap) - 1).bit_length()
+        depth = (-(-n // cap) - 1).bit_length()
+        per_path_h = jnp.ndim(h) != 0
+        e = tuple(e) if isinstance(e, (tuple, list)) else tuple(e[:, i] for i in range(3))
+        columns = (*y0, tau0[:, None], *y1, *e, rand) + ((h[:, None],) if per_path_h else ())
+        widths = [c.shape[1] for c in columns]
 
-        def pending(state, count):
-            return jax.vmap(violates)(state[2][0], rand) & (count < rule.max_impacts)
+        def unpack(rows):
+            parts = jnp.split(rows, list(itertools.accumulate(widths))[:-1], axis=1)
+            q0, v0, t0, q1, v1, e0, e1, e2, r = parts[:9]
+            return (q0, v0), t0[:, 0], (q1, v1), (e0, e1, e2), r, (parts[9][:, 0] if per_path_h else h)
 
-        def one_round(carry):
-            state, count, _ = carry
-            idx = first_in_lanes(pending(state, count), cap)
-            sub_state, sub_e, sub_rand = _gather(idx, (state, e, rand))
-            sub_h = h if jnp.ndim(h) == 0 else _gather(idx, h)
-            state = _scatter(idx, state, per_path(resolve, sub_h)(*sub_state, sub_e, sub_rand))
-            count = count.at[idx].add(1, mode="drop")
-            return state, count, jnp.any(pending(state, count))
+        def resolve_batch(rows):
+            """Up to ``max_impacts`` impacts of each of the batch's paths: ``(k, 2 d)`` end states."""
+            b0, t0, b1, be, br, bh = unpack(rows)
+            last = jnp.full(t0.shape, -1, jnp.int32)
 
-        def rounds(carry, depth):
-            """``carry`` if no path is pending, else up to ``2**depth`` rounds: two subtrees of ``depth - 1``."""
+            def one_impact(_, carry):
+                pending = jnp.any(jax.vmap(violates)(carry[2][0], br))
+                resolve_all = lambda c: per_path(resolve, bh)(*c, be, br)  # noqa: E731
+                return jax.lax.cond(pending, resolve_all, lambda c: c, carry)
+
+            b1 = jax.lax.fori_loop(0, rule.max_impacts, one_impact, (b0, t0, b1, last))[2]
+            return jnp.concatenate(b1, axis=1)
+
+        def one_batch(carry):
+            packed, end, todo, _ = carry
+            idx = first_in_lanes(todo, cap)
+            end = end.at[idx].set(resolve_batch(packed.at[idx].get(mode="clip")), mode="drop")
+            todo = todo.at[idx].set(False, mode="drop")
+            return packed, end, todo, jnp.any(todo)
+
+        def batches(carry, depth):
+            """``carry`` if no path is pending, else up to ``2**depth`` batches: two subtrees of ``depth - 1``."""
 
             def run(carry):
                 if depth == 0:
-                    return one_round(carry)
-                return jax.lax.fori_loop(0, 2, lambda _, c: rounds(c, depth - 1), carry)
+                    return one_batch(carry)
+                return jax.lax.fori_loop(0, 2, lambda _, c: batches(c, depth - 1), carry)
 
-            return jax.lax.cond(carry[2], run, lambda c: c, carry)
+            return jax.lax.cond(carry[3], run, lambda c: c, carry)
 
-        count = jnp.zeros(n, jnp.int32)
-        return rounds((state, count, jnp.any(pending(state, count))), depth)[0]
+        def run_all(end, todo):
+            return batches((jnp.concatenate(columns, axis=1), end, todo, True), depth)[1]
+
+        todo = jax.vmap(violates)(y1[0], rand)
+        end = jnp.concatenate(y1, axis=1)
+        end = jax.lax.cond(jnp.any(todo), run_all, lambda end, _: end, end, todo)
+        return end[:, :d], end[:, d:]
 
     def plain_step(q, v, e, rand, h):
         """One step of every path; ``h`` is the step length, shared (scalar) or per path ``(n,)``."""
-        tau0 = jnp.zeros(q.shape[:1], q.dtype)
+        tau0 = jnp.zeros(q.shape[:1], q.dtype)  # as an array: the step's constants round in the state's dtype
         if sticking:
-            resting = jnp.any(jax.vmap(rests)(q, v, rand))
-            tau0 = jax.lax.cond(resting, lambda: jax.vmap(start_fraction)(q, v, e, rand), lambda: tau0)
-        q1, v1 = per_path(free, h)(q, v, e, rand, tau0)
+            # A path at rest starts at its own fraction of the step. A step without one takes the plain form
+            # (the forcing nodes themselves), which XLA keeps in fewer, unpartitioned kernels.
+            def from_rest():
+                tau = jax.vmap(start_fraction)(q, v, e, rand)
+                return (*per_path(free, h)(q, v, e, rand, tau), tau)
+
+            def from_start():
+                return (*per_path(free_from_start, h)(q, v, e, rand), tau0)
+
+            q1, v1, tau0 = jax.lax.cond(jnp.any(jax.vmap(rests)(q, v, rand)), from_rest, from_start)
+        else:
+            q1, v1 = per_path(free, h)(q, v, e, rand, tau0)
         if not constrained:
             return q1, v1
         if rule.method == "locate":
-            state = ((q, v), tau0, (q1, v1), jnp.full(q.shape[:1], -1, jnp.int32))
-            q1, v1 = resolve_crossings(state, e, rand, h)[2]
+            q1, v1 = resolve_crossings((q, v), tau0, (q1, v1), e, rand, h)
         return jax.vmap(mirror)(q1, v1, rand)
 
     if substeps is None or substeps.max_substeps == 1 or not shared.may_be_stiff:

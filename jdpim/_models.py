@@ -13,6 +13,7 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from ._constraints import Constraints
 from ._pytree import check_real, pytree_dataclass, static_field
@@ -86,7 +87,7 @@ class AbstractOscillator(AbstractSystem):
         """The barrier as the one constraint ``x - barrier >= 0`` (``None`` without a barrier)."""
         if self.barrier is None:
             return None
-        one = jnp.ones((1, 1))
+        one = np.ones((1, 1))
         return Constraints(one, jnp.reshape(self.barrier, (1,)), jnp.reshape(self.r, (1,)), one)
 
 

@@ -135,13 +135,14 @@ def test_reverse_mode_stores_only_the_step_carry():
     def f(alpha):
         m = model.replace(alpha=alpha)
         exc, slots = jnp.zeros((2 * T + 1, n, 1)), jnp.ones((T,), jnp.int32)
-        out = integrate(
-            lambda _: m, ImpactRule(), 0.02, jnp.full((n, 1), 0.5), jnp.zeros((n, 1)), exc, jnp.zeros((n, 0)), slots, 1, 1
-        )
+        q0, v0 = jnp.full((n, 1), 0.5), jnp.zeros((n, 1))
+        out = integrate(lambda _: m, ImpactRule(), 0.02, q0, v0, exc, jnp.zeros((n, 0)), slots, 1, 1)
         return out.sum()
 
-    shapes = sorted(tuple(aval.shape) for aval, _ in saved_residuals(f, 0.1))
-    assert shapes == sorted([(), (T,), (T, n, 1), (T, n, 1), (T, n, 1), (T, n, 1), (T, n, 1)])
+    shapes = [tuple(aval.shape) for aval, _ in saved_residuals(f, 0.1)]
+    per_step = sorted(s for s in shapes if s[:1] == (T,))
+    assert per_step == sorted([(T,), (T, n, 1), (T, n, 1), (T, n, 1), (T, n, 1), (T, n, 1)])
+    assert all(math.prod(s) <= n for s in shapes if s[:1] != (T,))  # constants and the inputs: nothing per step
 
 
 @pytest.fixture(scope="module")

@@ -72,7 +72,7 @@ class PathIntegration(AbstractMethod):
             linearised at the start, at time ``t0`` (s, a multiple of ``tau``), folded at the barrier.
         newton: most Newton steps of the stationary solve (each one linear solve); it stops earlier once
             the L1 residual of a step is below 1e-8 (float64) or 3e-6 (float32).
-        max_iter, max_restarts: BiCGStab iterations per attempt and attempts (each from the best iterate so
+        max_iter, max_restarts, restart: BiCGStab iterations per attempt and attempts (each from the best iterate so
             far) of every linear solve (Newton steps, and the tangent and adjoint solves of derivatives),
             which stops at a relative residual of 1e-9 (float64) or 1e-5 (float32); where they do not reach
             it, up to ``max_restarts`` cycles of GMRES with Krylov dimension ``restart`` follow. A solve that
