@@ -12,7 +12,10 @@ from ._distributions import Uniform as Uniform
 from ._excitation import SpectralRepresentation as SpectralRepresentation
 from ._integrate import ImpactRule as ImpactRule
 from ._integrate import Substeps as Substeps
+from ._mdof import Barrier as Barrier
+from ._mdof import MDOFOscillator as MDOFOscillator
 from ._models import AbstractOscillator as AbstractOscillator
+from ._models import AbstractSystem as AbstractSystem
 from ._models import Oscillator as Oscillator
 from ._models import VibroImpactOscillator as VibroImpactOscillator
 from ._noise import WhiteNoise as WhiteNoise

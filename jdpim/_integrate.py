@@ -1,29 +1,34 @@
-r"""Batched RK4 over time with impacts located inside the step.
+r"""Batched RK4 over time with impacts located inside the step, on state vectors ``(q, v)`` with constraints.
 
 Every step of every path is one classical RK4 step ``t_n -> t_n + h`` whose forcing is the quadratic
-through the excitation at ``t_n``, ``t_n + h/2`` and ``t_n + h`` (exactly RK4's stage values). Where the
-step ends beyond the barrier (``x_{n+1} < b``) the impact is located and resolved:
+through the excitation at ``t_n``, ``t_n + h/2`` and ``t_n + h`` (exactly RK4's stage values). A path's
+state is ``q``, ``v`` of shape ``(d,)``; its model's unilateral constraints ``c_j(q) = n_j . q - b_j >= 0``
+(one for a single-degree-of-freedom oscillator with a barrier: ``x - b >= 0``) are stacked by
+:mod:`._constraints`. Where the step ends with a constraint violated the impact is located and resolved:
 
-1. ``s``: root of the cubic Hermite interpolant of ``(x_n, v_n, x_{n+1}, v_{n+1})``, by a bracketed
-   Newton iteration with a fixed number of steps and one final plain Newton step (so that derivatives
-   follow the implicit function theorem and carry the event-time shift: the saltation matrix);
-2. redo the step as ``RK4(s h)`` -> reset ``v <- -r v``, ``x <- b`` -> ``RK4((1 - s) h)``;
-3. repeat for up to ``max_impacts`` impacts in one step, then fall back to a mirror
-   ``(x, v) <- (2b - x, -r v)``, so that no stored state lies beyond the barrier;
-4. sticking: when the outgoing speed ``r |v_-|`` is below ``stick_velocity`` and the force at
-   ``(b, 0)`` pushes into the barrier, the path rests at ``(b, 0)`` until the force (a quadratic in
-   the step fraction) turns outward; that departure time is located inside the step, and a path that
-   starts a step at rest with an inward force waits for it too. This holds for every ``r`` (with
-   ``r = 1`` a path pressed against the barrier at rest makes bounces of zero height: it rests too).
-5. stiffness: a path whose local rate ``rho = |da/dv| + sqrt(|da/dx|)`` at the start of a step, or at
+1. ``s``: root of the cubic Hermite interpolant of each violated ``c_j`` (its values and rates at both ends),
+   by a bracketed Newton iteration with a fixed number of steps and one final plain Newton step (so that
+   derivatives follow the implicit function theorem and carry the event-time shift: the saltation
+   matrix); the constraint crossed first is resolved;
+2. redo the step as ``RK4(s h)`` -> impact (``q`` onto ``c_j = 0``, the generalised Newton law
+   ``v+ = v- - (1 + r_j) (n_j . v-) M^-1 n_j / (n_j . M^-1 n_j)``; ``x = b``, ``v = -r v`` for one
+   coordinate) -> ``RK4((1 - s) h)``;
+3. repeat for up to ``max_impacts`` impacts in one step, then fall back to a mirror through every violated
+   constraint (``c -> -c``, ``n . v -> -r n . v``), so that no stored state violates a constraint;
+4. sticking (one degree of freedom): when the outgoing speed ``r |v_-|`` is below ``stick_velocity`` and
+   the force at ``(b, 0)`` pushes into the barrier, the path rests at ``(b, 0)`` until the force (a
+   quadratic in the step fraction) turns outward; that departure time is located inside the step, and a
+   path that starts a step at rest with an inward force waits for it too. This holds for every ``r``
+   (with ``r = 1`` a path pressed against the barrier at rest makes bounces of zero height: it rests too).
+5. stiffness: a path whose local rate ``rho = |da/dv| + sqrt(|da/dq|)`` at the start of a step, or at
    the end of its full step, exceeds ``limit / h`` redoes that step as
    ``k = min(max_substeps, ceil(h rho / limit))`` equal sub-steps of its own (see :class:`Substeps`).
 
-Only the crossing paths do the impact work, in rounds: the paths are split into ``ceil(n / 64)`` lanes, and
-each round gathers the first path of every lane that still ends beyond the barrier, resolves one impact of
-each and scatters them back. The rounds run in loops of static trip count whose iterations are skipped
-(``lax.cond``) once no path is pending, so the resolution (and its sticking logic) is traced once whatever
-``max_impacts``, and a step without any crossing in the batch skips all of it. The ``"mirror"`` method is
+Only the crossing paths do the impact work, in batches of up to ``ceil(n / 64)`` paths gathered in one
+piece, each path's impacts resolved on the batch's small arrays and scattered back (see
+``resolve_crossings`` in :func:`make_batch_step`); the loops have static trip counts and skip their
+iterations (``lax.cond``) once no path is pending, so the resolution is traced once whatever
+``max_impacts``, and a step without any crossing skips all of it. The ``"mirror"`` method is
 the first-order "flip after the step" rule, kept for comparison.
 """
 
@@ -31,11 +36,13 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import itertools
 from typing import Any
 
 import jax
 import jax.numpy as jnp
 
+from ._constraints import dot, geometry, values
 from ._pytree import check_int, check_real
 
 
@@ -111,25 +118,26 @@ def _forcing(e, tau):
     return l0 * e[0] + lm * e[1] + l1 * e[2]
 
 
-def rk4(model, x, v, e, h, ta=0.0, tb=1.0):
-    """One RK4 step of one path from step fraction ``ta`` to ``tb`` (step length ``h``, seconds)."""
+def rk4(model, q, v, e, h, ta=0.0, tb=1.0):
+    """One RK4 step of one path (``q``, ``v``: ``(d,)``) from step fraction ``ta`` to ``tb`` (step length ``h``, s)."""
     H = (tb - ta) * h
     tm = 0.5 * (ta + tb)
 
-    def f(tau, x, v):
-        return v, model.acceleration(x, v, _forcing(e, tau))
+    def f(tau, q, v):
+        return v, model.state_acceleration(q, v, _forcing(e, tau))
 
-    k1x, k1v = f(ta, x, v)
-    k2x, k2v = f(tm, x + 0.5 * H * k1x, v + 0.5 * H * k1v)
-    k3x, k3v = f(tm, x + 0.5 * H * k2x, v + 0.5 * H * k2v)
-    k4x, k4v = f(tb, x + H * k3x, v + H * k3v)
-    return (x + H / 6.0 * (k1x + 2.0 * k2x + 2.0 * k3x + k4x), v + H / 6.0 * (k1v + 2.0 * k2v + 2.0 * k3v + k4v))
+    k1x, k1v = f(ta, q, v)
+    k2x, k2v = f(tm, q + 0.5 * H * k1x, v + 0.5 * H * k1v)
+    k3x, k3v = f(tm, q + 0.5 * H * k2x, v + 0.5 * H * k2v)
+    k4x, k4v = f(tb, q + H * k3x, v + H * k3v)
+    return (q + H / 6.0 * (k1x + 2.0 * k2x + 2.0 * k3x + k4x), v + H / 6.0 * (k1v + 2.0 * k2v + 2.0 * k3v + k4v))
 
 
-def locate_crossing(x0, v0, x1, v1, H, n_iter):
-    """Root ``s`` in [0, 1] of the cubic Hermite interpolant of ``x - b`` over a step of length ``H``.
+def locate_crossing(x0, v0, x1, v1, H, n_iter, on_barrier=None):
+    """Root ``s`` in [0, 1] of the cubic Hermite interpolant of ``c = x - b`` over a step of length ``H``.
 
-    ``x0 >= 0 > x1`` are positions relative to the barrier; velocities are ``dx/dt``.
+    ``x0 >= 0 > x1`` are the constraint's values ``c`` at the ends, ``v0``, ``v1`` their rates ``dc/dt``;
+    ``on_barrier`` marks steps that start on the constraint (default ``x0 == 0``).
     """
     a0, a1, b0, b1 = x0, x1, H * v0, H * v1
 
@@ -144,7 +152,7 @@ def locate_crossing(x0, v0, x1, v1, H, n_iter):
     # A step that starts on the barrier (after an impact or a departure) must step past the root p(0) = 0:
     # it seeks the root of the deflated quadratic q(s) = p(s) / s (q(0) = b0 >= 0 > q(1) = a1), from its
     # closed-form root; the iterations then only polish it.
-    on_barrier = a0 == 0
+    on_barrier = a0 == 0 if on_barrier is None else on_barrier
     c0, c1, c2 = b0, 3 * a1 - 2 * b0 - b1, b0 - 2 * a1 + b1
 
     def f(s):
@@ -190,14 +198,15 @@ def _bracketed_newton(q, dq, lo, hi, n_iter):
     return s
 
 
-def departure(model, e, tau0, n_iter=5):
-    """First step fraction in ``[tau0, 1]`` where a path at rest on the barrier is pulled off it; 1 if never.
+def departure(model, e, tau0, normal, q_rest, n_iter=5):
+    """First fraction in ``[tau0, 1]`` of the step where a path at rest at ``q_rest`` is pulled off; 1 if never.
 
-    The force at rest, ``F(tau) = a(b, 0, xi(tau))``, is affine in ``xi`` and so exactly the quadratic
-    through its values at ``tau = 0, 1/2, 1``; the path leaves at the first ``tau`` with ``F(tau) > 0``.
+    One degree of freedom: the force along the constraint's normal at rest, ``F(tau) = n a(q_rest, 0, xi(tau))``,
+    is affine in ``xi`` and so exactly the quadratic through its values at ``tau = 0, 1/2, 1``; the path
+    leaves at the first ``tau`` with ``F(tau) > 0``.
     """
-    b = jnp.asarray(model.barrier, e[0].dtype)
-    f = jnp.stack([model.acceleration(b, jnp.zeros_like(b), e[i]) for i in range(3)])
+    rest = jnp.zeros_like(q_rest)
+    f = jnp.stack([dot(normal, model.state_acceleration(q_rest, rest, e[i])) for i in range(3)])
     c0, c1, c2 = f[0], -3.0 * f[0] + 4.0 * f[1] - f[2], 2.0 * f[0] - 4.0 * f[1] + 2.0 * f[2]
 
     def q(tau):
@@ -214,36 +223,63 @@ def departure(model, e, tau0, n_iter=5):
     return jnp.where(q(tau0) > 0, tau0, jnp.where(in_first | (q(1.0) > 0), root, 1.0))
 
 
-def _resolve_one(model, rule: ImpactRule, h, y0, tau0, y1, e):
-    """Resolve the first impact of one path inside ``[tau0, 1]`` of the step, where ``y1`` is beyond it."""
-    b = model.barrier
-    (x0, v0), (x1, v1) = y0, y1
-    hit = x1 < b
-    # Paths without a crossing get harmless stand-in values, so that no NaN reaches a derivative.
-    rx0 = jnp.where(hit, x0 - b, 1.0)
-    rx1 = jnp.where(hit, x1 - b, -1.0)
-    span = (1.0 - tau0) * h
-    s = locate_crossing(rx0, v0, rx1, v1, jnp.where(hit, span, h), rule.newton_iterations)
-    theta = tau0 + s * (1.0 - tau0)
-    _, vc = rk4(model, x0, v0, e, h, tau0, theta)
-    v_plus = model.r * jnp.abs(vc)
-    xr, vr = rk4(model, jnp.asarray(b, x0.dtype), v_plus, e, h, theta, 1.0)
-    if rule.stick_velocity > 0:
-        pushes_in = model.acceleration(b, jnp.zeros_like(v0), _forcing(e, theta)) <= 0
-        stick = (v_plus < rule.stick_velocity) & pushes_in
-        tau_d = departure(model, e, theta)  # rest at (b, 0) until the force pulls away
-        xd, vd = rk4(model, jnp.asarray(b, x0.dtype), jnp.zeros_like(v0), e, h, tau_d, 1.0)
-        xr, vr = jnp.where(stick, xd, xr), jnp.where(stick, vd, vr)
-        v_plus, theta = jnp.where(stick, 0.0, v_plus), jnp.where(stick, tau_d, theta)
-    new_y0 = (jnp.where(hit, b, x0), jnp.where(hit, v_plus, v0))
-    new_y1 = (jnp.where(hit, xr, x1), jnp.where(hit, vr, v1))
-    return new_y0, jnp.where(hit, theta, tau0), new_y1
+def _resolve_one(model, rule: ImpactRule, h, y0, tau0, y1, last, e):
+    """Resolve the first impact of one path inside ``[tau0, 1]`` of the step, where ``y1`` violates a constraint.
+
+    ``y0 = (q, v)`` at ``tau0``, ``y1`` at the step's end, ``last`` the constraint resolved last in this step
+    (-1 for none). Of the violated constraints the one crossed first is located and resolved (the others,
+    if still violated, by the next calls). Returns the new ``(y0, tau0, y1, last)``.
+    """
+    (q0, v0), (q1, v1) = y0, y1
+    geo = geometry(model.stacked_constraints(), q0.dtype)
+    c0, c1 = values(geo, q0), values(geo, q1)
+    crossing = c1 < 0
+    one = c0.shape[0] == 1  # one constraint: no reductions over constraints (each one a kernel of its own in XLA)
+    hit = crossing[0] if one else jnp.any(crossing)
+    # Constraints without a crossing get harmless stand-in values, so that no NaN reaches a derivative.
+    rc0 = jnp.where(crossing, c0, 1.0)
+    rc1 = jnp.where(crossing, c1, -1.0)
+    on = crossing & ((c0 == 0) | (jnp.arange(c0.shape[0]) == last))
+    span = jnp.where(crossing, (1.0 - tau0) * h, h)
+    s_all = locate_crossing(rc0, dot(geo.normal, v0), rc1, dot(geo.normal, v1), span, rule.newton_iterations, on)
+    j = jnp.zeros((), jnp.int32) if one else jnp.argmin(jnp.where(crossing, s_all, 2.0)).astype(jnp.int32)
+    normal, position, r, push, onto, unit, keep, _ = (_pick(a, j) for a in geo)
+    theta = tau0 + _pick(s_all, j) * (1.0 - tau0)
+    qc, vc = rk4(model, q0, v0, e, h, tau0, theta)
+    q_plus = dot(onto, qc) + position * unit  # on the plane c_j = 0
+    v_plus = dot(keep, vc) + r * jnp.abs(dot(normal, vc)) * push  # generalised Newton law
+    qr, vr = rk4(model, q_plus, v_plus, e, h, theta, 1.0)
+    if rule.stick_velocity > 0 and q0.shape[0] == 1:  # one degree of freedom: rest on the constraint
+        rest = jnp.zeros_like(v0)
+        pushes_in = dot(normal, model.state_acceleration(q_plus, rest, _forcing(e, theta))) <= 0
+        stick = (r * jnp.abs(dot(normal, vc)) < rule.stick_velocity) & pushes_in
+        tau_d = departure(model, e, theta, normal, q_plus)  # rest at (q_plus, 0) until the force pulls away
+        qd, vd = rk4(model, q_plus, rest, e, h, tau_d, 1.0)
+        qr, vr = jnp.where(stick, qd, qr), jnp.where(stick, vd, vr)
+        v_plus, theta = jnp.where(stick, rest, v_plus), jnp.where(stick, tau_d, theta)
+    new_y0 = (jnp.where(hit, q_plus, q0), jnp.where(hit, v_plus, v0))
+    new_y1 = (jnp.where(hit, qr, q1), jnp.where(hit, vr, v1))
+    return new_y0, jnp.where(hit, theta, tau0), new_y1, jnp.where(hit, j, last)
 
 
-def _mirror(model, x, v):
-    b = model.barrier
-    beyond = x < b
-    return jnp.where(beyond, 2 * b - x, x), jnp.where(beyond, -model.r * v, v)
+def _pick(a, j):
+    """``a[j]`` for a traced ``j``: a masked sum (elementwise for XLA, where a gather per path is slow); ``a[0]``
+    when there is one constraint."""
+    if a.shape[0] == 1:
+        return a[0]
+    mask = jnp.reshape(jnp.arange(a.shape[0]) == j, (-1,) + (1,) * (a.ndim - 1))
+    return jnp.sum(jnp.where(mask, a, 0), axis=0)
+
+
+def _mirror(model, q, v):
+    """Reflect ``(q, v)`` through every constraint it violates (in order): ``c -> -c``, ``u -> -r u``."""
+    geo = geometry(model.stacked_constraints(), q.dtype)
+    for j in range(geo.normal.shape[0]):
+        beyond = dot(geo.normal[j], q) - geo.position[j] < 0
+        q_new = dot(geo.flip[j], q) + 2.0 * geo.position[j] * geo.unit[j]
+        v_new = dot(geo.keep[j], v) - geo.r[j] * dot(geo.normal[j], v) * geo.push[j]
+        q, v = jnp.where(beyond, q_new, q), jnp.where(beyond, v_new, v)
+    return q, v
 
 
 def first_in_lanes(mask, lanes: int):
@@ -259,50 +295,64 @@ def first_in_lanes(mask, lanes: int):
     return jnp.where(jnp.any(runs, axis=1), jnp.arange(lanes) * group + jnp.argmax(runs, axis=1), n)
 
 
-def _gather(idx, tree):
-    """Rows ``idx`` of every array in ``tree`` (indices past the end give the last row: padding)."""
-    return jax.tree_util.tree_map(lambda a: a.at[idx].get(mode="clip"), tree)
+def stiffness_rate(model, q, v, xi):
+    """``rho = |da/dv| + sqrt(|da/dq|)`` of one path (1/s; infinity norms): bounds the Jacobian's spectral radius."""
+    a_q = jax.jacfwd(lambda q: model.state_acceleration(q, v, xi))(q)
+    a_v = jax.jacfwd(lambda v: model.state_acceleration(q, v, xi))(v)
+    return jnp.max(jnp.sum(jnp.abs(a_v), axis=1)) + jnp.sqrt(jnp.max(jnp.sum(jnp.abs(a_q), axis=1)))
 
 
-def _scatter(idx, tree, rows):
-    """``tree`` with rows ``idx`` replaced by ``rows`` (indices past the end are dropped: padding)."""
-    return jax.tree_util.tree_map(lambda a, b: a.at[idx].set(b, mode="drop"), tree, rows)
-
-
-def stiffness_rate(model, x, v, xi):
-    """``rho = |da/dv| + sqrt(|da/dx|)`` of one path (1/s): a bound on the local Jacobian's spectral radius."""
-    a_x = jax.jvp(lambda x: model.acceleration(x, v, xi), (x,), (jnp.ones_like(x),))[1]
-    a_v = jax.jvp(lambda v: model.acceleration(x, v, xi), (v,), (jnp.ones_like(v),))[1]
-    return jnp.abs(a_v) + jnp.sqrt(jnp.abs(a_x))
+def _paths(mask, a):
+    """``mask`` ``(n,)`` broadcast against the per-path array ``a`` ``(n, ...)``."""
+    return jnp.reshape(mask, mask.shape + (1,) * (a.ndim - 1))
 
 
 def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None = None):
-    """The step for a batch of paths: ``(x, v, e, rand) -> (x, v)``, each ``(n,)``.
+    """The step for a batch of paths: ``(q, v, e, rand) -> (q, v)``, ``q`` and ``v`` each ``(n, d)``.
 
     ``e`` is the forcing at the start, middle and end of the step: a tuple of three ``(n, m)`` arrays
     (or one ``(n, 3, m)`` array).
 
     ``path_model(rand)`` builds one path's model from its random-parameter vector. Impacts are resolved
-    on the crossing paths only, in rounds of up to ``ceil(n / 64)`` of them (one per lane) gathered, resolved
-    and scattered back. With ``substeps`` (and a model that may be stiff) each path that needs it takes the
+    on the crossing paths only, in batches of up to ``ceil(n / 64)`` of them gathered, resolved and
+    scattered back. With ``substeps`` (and a model that may be stiff) each path that needs it takes the
     step as sub-steps of its own (see :class:`Substeps`).
     """
     shared = path_model(None)
-    sticking = shared.has_barrier and rule.method == "locate" and rule.stick_velocity > 0
+    constrained = shared.stacked_constraints() is not None
+    sticking = constrained and rule.method == "locate" and rule.stick_velocity > 0 and shared.dimension == 1
 
-    def free(x, v, e, rand, tau0, h):
-        return rk4(path_model(rand), x, v, e, h, tau0, 1.0)
+    def free(q, v, e, rand, tau0, h):
+        return rk4(path_model(rand), q, v, e, h, tau0, 1.0)
 
-    def resolve(y0, tau0, y1, e, rand, h):
-        return _resolve_one(path_model(rand), rule, h, y0, tau0, y1, e)
+    def free_from_start(q, v, e, rand, h):
+        return rk4(path_model(rand), q, v, e, h)  # fractions 0 and 1: no interpolation of the forcing
 
-    def mirror(x, v, rand):
-        return _mirror(path_model(rand), x, v)
+    def resolve(y0, tau0, y1, last, e, rand, h):
+        return _resolve_one(path_model(rand), rule, h, y0, tau0, y1, last, e)
 
-    def start_fraction(x, v, e, rand):
-        """0, or for a path at rest on the barrier the fraction at which the force pulls it off."""
+    def mirror(q, v, rand):
+        return _mirror(path_model(rand), q, v)
+
+    def constraint_values(q, rand):
+        """``c_j(q)`` of one path's constraints, ``(J,)``."""
+        return values(geometry(path_model(rand).stacked_constraints(), q.dtype), q)
+
+    def violates(q, rand):
+        c = constraint_values(q, rand)
+        return c[0] < 0 if c.shape[0] == 1 else jnp.any(c < 0)
+
+    def rests(q, v, rand):
+        c = constraint_values(q, rand)
+        on = c[0] == 0 if c.shape[0] == 1 else jnp.any(c == 0)
+        return on & (v[0] == 0 if v.shape[0] == 1 else jnp.all(v == 0))
+
+    def start_fraction(q, v, e, rand):
+        """0, or for a path at rest on a constraint the fraction at which the force pulls it off."""
         model = path_model(rand)
-        return jnp.where((x == model.barrier) & (v == 0), departure(model, e, 0.0), 0.0)
+        geo = geometry(model.stacked_constraints(), q.dtype)
+        normal = _pick(geo.normal, jnp.argmax(values(geo, q) == 0))
+        return jnp.where(rests(q, v, rand), departure(model, e, 0.0, normal, q), 0.0)
 
     def per_path(fn, h):
         """``fn(..., h=)`` vmapped over the paths, with a step length ``h`` shared (scalar) or per path ``(n,)``."""
@@ -310,70 +360,103 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
             return jax.vmap(functools.partial(fn, h=h))
         return lambda *args: jax.vmap(lambda *a: fn(*a[:-1], h=a[-1]))(*args, h)
 
-    def resolve_crossings(state, e, rand, barrier, h):
-        """Every located impact of the step, in rounds: the paths are split into ``cap`` lanes of ``G = ceil(n / cap)``,
-        and each round gathers the first path of every lane that still ends beyond the barrier after fewer than
-        ``max_impacts`` resolutions, resolves one impact of each and scatters them back.
+    def resolve_crossings(y0, tau0, y1, e, rand, h):
+        """Every located impact of the step: ``y1`` with each crossing path's impacts resolved.
 
-        ``max_impacts * G`` rounds suffice for any step: a round serves every lane with a pending path, and a
-        lane's ``G`` paths need at most ``max_impacts`` resolutions each. ``2**depth`` rounds run as a binary
-        tree of ``fori_loop`` of two iterations (static trip counts, so reverse-mode AD works) whose subtrees
-        are skipped once no path is pending: the resolution is traced once, and a step whose crossings fit in
-        one round passes ``depth`` skipped subtrees.
+        The crossing paths are served in batches of up to ``cap = ceil(n / 64)``: the paths are split into
+        ``cap`` lanes of ``G = ceil(n / cap)``, and a batch takes the first crossing path of every lane that
+        has one, gathered in one piece (every per-path input packed in the columns of one array), resolves
+        up to ``max_impacts`` impacts of each on these few rows, and scatters their end states back. Every
+        loop that runs on the batch touches only its small arrays, and every loop level over batches has a
+        few operations in a chain, so XLA's CPU runtime runs them inline rather than handing them to its
+        thread pool (which costs more than the work).
+
+        ``G`` batches serve any step; ``2**depth >= G`` of them run as a binary tree of ``fori_loop`` of two
+        iterations (static trip counts, so reverse-mode AD works) whose subtrees are skipped once no path is
+        pending: the resolution is traced once, and a step whose crossings fit in one batch passes ``depth``
+        skipped subtrees.
         """
-        n = barrier.shape[0]
+        n, d = y0[0].shape
         cap = max(1, -(-n // 64))
-        depth = (rule.max_impacts * -(-n // cap) - 1).bit_length()
+        depth = (-(-n // cap) - 1).bit_length()
+        per_path_h = jnp.ndim(h) != 0
+        e = tuple(e) if isinstance(e, (tuple, list)) else tuple(e[:, i] for i in range(3))
+        columns = (*y0, tau0[:, None], *y1, *e, rand) + ((h[:, None],) if per_path_h else ())
+        widths = [c.shape[1] for c in columns]
 
-        def pending(state, count):
-            return (state[2][0] < barrier) & (count < rule.max_impacts)
+        def unpack(rows):
+            parts = jnp.split(rows, list(itertools.accumulate(widths))[:-1], axis=1)
+            q0, v0, t0, q1, v1, e0, e1, e2, r = parts[:9]
+            return (q0, v0), t0[:, 0], (q1, v1), (e0, e1, e2), r, (parts[9][:, 0] if per_path_h else h)
 
-        def one_round(carry):
-            state, count, _ = carry
-            idx = first_in_lanes(pending(state, count), cap)
-            sub_state, sub_e, sub_rand = _gather(idx, (state, e, rand))
-            sub_h = h if jnp.ndim(h) == 0 else _gather(idx, h)
-            state = _scatter(idx, state, per_path(resolve, sub_h)(*sub_state, sub_e, sub_rand))
-            count = count.at[idx].add(1, mode="drop")
-            return state, count, jnp.any(pending(state, count))
+        def resolve_batch(rows):
+            """Up to ``max_impacts`` impacts of each of the batch's paths: ``(k, 2 d)`` end states."""
+            b0, t0, b1, be, br, bh = unpack(rows)
+            last = jnp.full(t0.shape, -1, jnp.int32)
 
-        def rounds(carry, depth):
-            """``carry`` if no path is pending, else up to ``2**depth`` rounds: two subtrees of ``depth - 1``."""
+            def one_impact(_, carry):
+                pending = jnp.any(jax.vmap(violates)(carry[2][0], br))
+                resolve_all = lambda c: per_path(resolve, bh)(*c, be, br)  # noqa: E731
+                return jax.lax.cond(pending, resolve_all, lambda c: c, carry)
+
+            b1 = jax.lax.fori_loop(0, rule.max_impacts, one_impact, (b0, t0, b1, last))[2]
+            return jnp.concatenate(b1, axis=1)
+
+        def one_batch(carry):
+            packed, end, todo, _ = carry
+            idx = first_in_lanes(todo, cap)
+            end = end.at[idx].set(resolve_batch(packed.at[idx].get(mode="clip")), mode="drop")
+            todo = todo.at[idx].set(False, mode="drop")
+            return packed, end, todo, jnp.any(todo)
+
+        def batches(carry, depth):
+            """``carry`` if no path is pending, else up to ``2**depth`` batches: two subtrees of ``depth - 1``."""
 
             def run(carry):
                 if depth == 0:
-                    return one_round(carry)
-                return jax.lax.fori_loop(0, 2, lambda _, c: rounds(c, depth - 1), carry)
+                    return one_batch(carry)
+                return jax.lax.fori_loop(0, 2, lambda _, c: batches(c, depth - 1), carry)
 
-            return jax.lax.cond(carry[2], run, lambda c: c, carry)
+            return jax.lax.cond(carry[3], run, lambda c: c, carry)
 
-        count = jnp.zeros(n, jnp.int32)
-        return rounds((state, count, jnp.any(pending(state, count))), depth)[0]
+        def run_all(end, todo):
+            return batches((jnp.concatenate(columns, axis=1), end, todo, True), depth)[1]
 
-    def plain_step(x, v, e, rand, h):
+        todo = jax.vmap(violates)(y1[0], rand)
+        end = jnp.concatenate(y1, axis=1)
+        end = jax.lax.cond(jnp.any(todo), run_all, lambda end, _: end, end, todo)
+        return end[:, :d], end[:, d:]
+
+    def plain_step(q, v, e, rand, h):
         """One step of every path; ``h`` is the step length, shared (scalar) or per path ``(n,)``."""
-        tau0 = jnp.zeros_like(x)
-        if shared.has_barrier:
-            barrier = jax.vmap(lambda r: jnp.asarray(path_model(r).barrier, x.dtype))(rand)
+        tau0 = jnp.zeros(q.shape[:1], q.dtype)  # as an array: the step's constants round in the state's dtype
         if sticking:
-            resting = (x == barrier) & (v == 0)
-            tau0 = jax.lax.cond(jnp.any(resting), lambda: jax.vmap(start_fraction)(x, v, e, rand), lambda: tau0)
-        x1, v1 = per_path(free, h)(x, v, e, rand, tau0)
-        if not shared.has_barrier:
-            return x1, v1
+            # A path at rest starts at its own fraction of the step. A step without one takes the plain form
+            # (the forcing nodes themselves), which XLA keeps in fewer, unpartitioned kernels.
+            def from_rest():
+                tau = jax.vmap(start_fraction)(q, v, e, rand)
+                return (*per_path(free, h)(q, v, e, rand, tau), tau)
+
+            def from_start():
+                return (*per_path(free_from_start, h)(q, v, e, rand), tau0)
+
+            q1, v1, tau0 = jax.lax.cond(jnp.any(jax.vmap(rests)(q, v, rand)), from_rest, from_start)
+        else:
+            q1, v1 = per_path(free, h)(q, v, e, rand, tau0)
+        if not constrained:
+            return q1, v1
         if rule.method == "locate":
-            state = ((x, v), tau0, (x1, v1))
-            x1, v1 = resolve_crossings(state, e, rand, barrier, h)[2]
-        return jax.vmap(mirror)(x1, v1, rand)
+            q1, v1 = resolve_crossings((q, v), tau0, (q1, v1), e, rand, h)
+        return jax.vmap(mirror)(q1, v1, rand)
 
     if substeps is None or substeps.max_substeps == 1 or not shared.may_be_stiff:
         return functools.partial(plain_step, h=h)
 
     n_max = substeps.max_substeps
 
-    def needed(x, v, e, rand, node):
-        """Sub-steps one path needs at ``(x, v)`` under its forcing node ``e[node]`` (``n_max`` if not finite)."""
-        k = jnp.ceil(h * stiffness_rate(path_model(rand), x, v, e[node]) / substeps.limit)
+    def needed(q, v, e, rand, node):
+        """Sub-steps one path needs at ``(q, v)`` under its forcing node ``e[node]`` (``n_max`` if not finite)."""
+        k = jnp.ceil(h * stiffness_rate(path_model(rand), q, v, e[node]) / substeps.limit)
         return jnp.clip(jnp.where(jnp.isfinite(k), k, n_max), 1, n_max).astype(jnp.int32)
 
     def sub_forcing(e, ta, tb):
@@ -391,12 +474,12 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
         ta, tb = jnp.where(active, i / kf, 0.0), jnp.where(active, (i + 1) / kf, 0.0)
         sub_e = jax.vmap(sub_forcing)(e, ta, tb)
         new = plain_step(*y, sub_e, rand, jnp.where(active, h / kf, 0.0))
-        return tuple(jnp.where(active, a, b) for a, b in zip(new, y, strict=True))
+        return tuple(jnp.where(_paths(active, a), a, b) for a, b in zip(new, y, strict=True))
 
-    def step(x, v, e, rand):
-        start = (x, v)
-        finite = jnp.isfinite(x) & jnp.isfinite(v)
-        k_start = jax.vmap(functools.partial(needed, node=0))(x, v, e, rand)
+    def step(q, v, e, rand):
+        start = (q, v)
+        finite = jnp.all(jnp.isfinite(q), axis=1) & jnp.all(jnp.isfinite(v), axis=1)
+        k_start = jax.vmap(functools.partial(needed, node=0))(q, v, e, rand)
 
         def body(i, carry):
             # iteration 0: every path's full step (its trial); then the paths that need it redo the
@@ -419,7 +502,7 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
         trial, y, k = jax.lax.fori_loop(
             0, n_max + 1, lambda i, c: jax.lax.cond(active(i, c), body, lambda i, c: c, i, c), (start, start, k_start)
         )
-        return tuple(jnp.where(k > 1, a, b) for a, b in zip(y, trial, strict=True))
+        return tuple(jnp.where(_paths(k > 1, a), a, b) for a, b in zip(y, trial, strict=True))
 
     return step
 
@@ -428,7 +511,7 @@ def integrate(
     path_model,
     rule: ImpactRule,
     h: float,
-    x0,
+    q0,
     v0,
     excitation,
     rand,
@@ -444,20 +527,20 @@ def integrate(
         path_model: ``rand -> model`` for one path (``rand=None`` gives the shared model).
         rule: impact settings.
         h: time step, s.
-        x0, v0: initial states, shape ``(n,)``.
+        q0, v0: initial coordinates and velocities, shape ``(n, d)``.
         excitation: ``xi`` on the half-step grid, time-major, shape ``(2 T + 1, n, m)``.
         rand: random parameters per path, shape ``(n, n_random)``.
         slots: shape ``(T,)`` int: the save slot written after each step (``n_save`` = none).
         n_save: number of saved times. Slot ``n_save`` is a scratch row.
         initial_slot: the save slot of ``t = 0`` (``n_save`` if not saved).
         substeps: sub-stepping of stiff steps, or ``None`` for none.
-        accumulate: ``None``, or ``(model, x, v, dw) -> (k,)`` for one path: the increments of ``k``
-            running sums ``A``, from the state ``(x, v)`` at the start of each step and its noise
-            increment ``dw = h/6 (e_0 + 4 e_1/2 + e_1)`` (shape ``(m,)``, Simpson's rule of the forcing).
+        accumulate: ``None``, or ``(model, q, v, dw) -> (k,)`` for one path: the increments of ``k``
+            running sums ``A``, from the state ``(q, v)`` (each ``(d,)``) at the start of each step and its
+            noise increment ``dw = h/6 (e_0 + 4 e_1/2 + e_1)`` (shape ``(m,)``, Simpson's rule of the forcing).
             ``A(0) = 0``; ``A`` is stored at the save slots like the states.
 
     Returns:
-        shape ``(n, n_save, 2)``: ``(x, v)`` at the saved times; with ``accumulate`` the pair
+        shape ``(n, n_save, 2 d)``: ``(q, v)`` at the saved times; with ``accumulate`` the pair
         ``(states, sums)``, ``sums`` of shape ``(n, n_save, k)``.
     """
     step = jax.checkpoint(make_batch_step(path_model, rule, h, substeps))
@@ -469,30 +552,31 @@ def integrate(
         return tuple(jax.lax.dynamic_index_in_dim(excitation, 2 * k + i, keepdims=False) for i in range(3))
 
     def body(carry, inputs):
-        x, v, buf = carry
+        q, v, buf = carry
         k, slot = inputs
-        x, v = step(x, v, nodes(k), rand)
-        buf = jax.lax.dynamic_update_index_in_dim(buf, jnp.stack([x, v], axis=-1), slot, axis=0)
-        return (x, v, buf), None
+        q, v = step(q, v, nodes(k), rand)
+        buf = jax.lax.dynamic_update_index_in_dim(buf, jnp.concatenate([q, v], axis=-1), slot, axis=0)
+        return (q, v, buf), None
 
-    buf = jnp.zeros((n_save + 1, n, 2), dtype=x0.dtype).at[initial_slot].set(jnp.stack([x0, v0], axis=-1))
+    d = q0.shape[1]
+    buf = jnp.zeros((n_save + 1, n, 2 * d), dtype=q0.dtype).at[initial_slot].set(jnp.concatenate([q0, v0], axis=-1))
     if accumulate is None:
-        (x, v, buf), _ = jax.lax.scan(body, (x0, v0, buf), (jnp.arange(T), slots))
+        (q, v, buf), _ = jax.lax.scan(body, (q0, v0, buf), (jnp.arange(T), slots))
         return jnp.moveaxis(buf[:n_save], 0, 1)
 
-    def increments(x, v, e, r):
+    def increments(q, v, e, r):
         dw = h / 6.0 * (e[0] + 4.0 * e[1] + e[2])
-        return accumulate(path_model(r), x, v, dw)
+        return accumulate(path_model(r), q, v, dw)
 
     def body_with_sums(carry, inputs):
-        (x, v, buf), sums, sums_buf = carry
-        sums = sums + jax.vmap(increments)(x, v, nodes(inputs[0]), rand)
+        (q, v, buf), sums, sums_buf = carry
+        sums = sums + jax.vmap(increments)(q, v, nodes(inputs[0]), rand)
         sums_buf = jax.lax.dynamic_update_index_in_dim(sums_buf, sums, inputs[1], axis=0)
-        return (body((x, v, buf), inputs)[0], sums, sums_buf), None
+        return (body((q, v, buf), inputs)[0], sums, sums_buf), None
 
-    k = jax.eval_shape(increments, x0[0], v0[0], tuple(excitation[i, 0] for i in range(3)), rand[0]).shape[0]
-    sums = jnp.zeros((n, k), x0.dtype)
-    init = ((x0, v0, buf), sums, jnp.zeros((n_save + 1, n, k), x0.dtype))
+    k = jax.eval_shape(increments, q0[0], v0[0], tuple(excitation[i, 0] for i in range(3)), rand[0]).shape[0]
+    sums = jnp.zeros((n, k), q0.dtype)
+    init = ((q0, v0, buf), sums, jnp.zeros((n_save + 1, n, k), q0.dtype))
     ((_, _, buf), _, sums_buf), _ = jax.lax.scan(body_with_sums, init, (jnp.arange(T), slots))
     return jnp.moveaxis(buf[:n_save], 0, 1), jnp.moveaxis(sums_buf[:n_save], 0, 1)
 

@@ -13,11 +13,31 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
+from ._constraints import Constraints
 from ._pytree import check_real, pytree_dataclass, static_field
 
 
-class AbstractOscillator:
+class AbstractSystem:
+    """What the integrator and the sampling methods need of a model (one path's functions; batches use ``vmap``).
+
+    ``dimension`` (``n``), ``coordinates`` (``2 n`` names: coordinates then velocities), ``n_sources``,
+    ``state_acceleration(q, v, xi) -> (n,)``, ``stacked_constraints() -> Constraints | None``, ``has_barrier``
+    and ``may_be_stiff`` (whether sub-stepping is traced when the scene asks for it).
+    """
+
+    @property
+    def may_be_stiff(self) -> bool:
+        """Whether the model has terms that can make explicit RK4 unstable (then sub-stepping is traced)."""
+        return True
+
+    def replace(self, **changes):
+        """A copy with fields replaced, e.g. ``model.replace(alpha=0.05)``."""
+        return dataclasses.replace(self, **changes)
+
+
+class AbstractOscillator(AbstractSystem):
     """Interface of a single-degree-of-freedom oscillator with an optional rigid barrier.
 
     Subclasses provide ``restoring(x)`` (g), ``damping(x, v)`` (f) and ``gains(x, v)`` (h, shape
@@ -37,10 +57,6 @@ class AbstractOscillator:
     def gains(self, x, v):
         raise NotImplementedError
 
-    def replace(self, **changes):
-        """A copy with fields replaced, e.g. ``model.replace(alpha=0.05)``."""
-        return dataclasses.replace(self, **changes)
-
     @property
     def has_barrier(self) -> bool:
         return self.barrier is not None
@@ -50,14 +66,29 @@ class AbstractOscillator:
         """Names of the state's entries, in order: displacement ``"x"`` and velocity ``"v"``."""
         return ("x", "v")
 
+    def bounds(self):
+        """The barrier (where density kernels of ``"x"`` are reflected), or ``None``."""
+        return self.barrier if self.has_barrier else None
+
     @property
-    def may_be_stiff(self) -> bool:
-        """Whether the model has terms that can make explicit RK4 unstable (then sub-stepping is traced)."""
-        return True
+    def dimension(self) -> int:
+        """Degrees of freedom: 1."""
+        return 1
 
     def acceleration(self, x, v, xi):
         r"""``x'' = -g(x) - f(x, v) + h(x, v) . xi`` for one path; ``xi`` has shape ``(n_sources,)``."""
         return -self.restoring(x) - self.damping(x, v) + jnp.dot(self.gains(x, v), xi)
+
+    def state_acceleration(self, q, v, xi):
+        """:meth:`acceleration` on the state's vectors ``q``, ``v`` of shape ``(1,)`` (the integrator's form)."""
+        return jnp.reshape(self.acceleration(q[0], v[0], xi), (1,))
+
+    def stacked_constraints(self) -> Constraints | None:
+        """The barrier as the one constraint ``x - barrier >= 0`` (``None`` without a barrier)."""
+        if self.barrier is None:
+            return None
+        one = np.ones((1, 1))
+        return Constraints(one, jnp.reshape(self.barrier, (1,)), jnp.reshape(self.r, (1,)), one)
 
 
 def _check_impact(r, barrier) -> None:
@@ -176,7 +207,9 @@ class Oscillator(AbstractOscillator):
         return jnp.reshape(self.h(x, v, self.params), (self.n_sources,))
 
 
-def n_sources_of(model: AbstractOscillator) -> int:
-    """Number of noise sources the model's gains expect (from an abstract evaluation)."""
+def n_sources_of(model: AbstractSystem) -> int:
+    """Number of noise sources the model's gains expect (from an abstract evaluation for one degree of freedom)."""
+    if not isinstance(model, AbstractOscillator):
+        return model.n_sources
     shape = jax.eval_shape(lambda: model.gains(jnp.zeros(()), jnp.zeros(()))).shape
     return int(shape[0])

@@ -13,7 +13,7 @@ import numpy as np
 from ._distributions import ANGLE, Normal, Uniform
 from ._excitation import SpectralGrid, SpectralRepresentation
 from ._integrate import ImpactRule, Substeps
-from ._models import AbstractOscillator, Oscillator, n_sources_of
+from ._models import AbstractOscillator, AbstractSystem, Oscillator, n_sources_of
 from ._noise import WhiteNoise
 from ._pytree import check_real, concrete, pytree_dataclass, static_field
 
@@ -49,7 +49,7 @@ class Scene:
         (1000, (500, 1000))
     """
 
-    model: AbstractOscillator
+    model: AbstractSystem
     noise: WhiteNoise = dataclasses.field(default_factory=WhiteNoise)
     x0: Any = None
     v0: Any = 0.0
@@ -63,8 +63,11 @@ class Scene:
     dtype: str | None = static_field(default=None)
 
     def __post_init__(self):
-        if not isinstance(self.model, AbstractOscillator):
-            raise TypeError(f"model must be an oscillator (e.g. jdpim.VibroImpactOscillator), got {self.model!r}")
+        if not isinstance(self.model, AbstractSystem):
+            raise TypeError(
+                f"model must be an oscillator (jdpim.VibroImpactOscillator, jdpim.MDOFOscillator, ...), "
+                f"got {self.model!r}"
+            )
         if not isinstance(self.noise, WhiteNoise):
             raise TypeError(f"noise must be a jdpim.WhiteNoise, got {self.noise!r}")
         check_real("t_end", self.t_end, low=0.0, low_open=True, scalar=True)
@@ -94,14 +97,39 @@ class Scene:
                 f"the model's gains expect {n_sources_of(self.model)} noise source(s) but noise.D "
                 f"has {self.noise.n_sources}"
             )
-        check_real("v0", self.v0, scalar=True)
-        if self.x0 is not None:
-            check_real("x0", self.x0, scalar=True)
-            x0, b = concrete(self.x0), concrete(self.model.barrier)
-            if x0 is not None and b is not None and self.model.has_barrier and np.any(x0 < b):
+        if isinstance(self.model, AbstractOscillator):
+            check_real("v0", self.v0, scalar=True)
+            if self.x0 is not None:
+                check_real("x0", self.x0, scalar=True)
+                x0, b = concrete(self.x0), concrete(self.model.barrier)
+                if x0 is not None and b is not None and self.model.has_barrier and np.any(x0 < b):
+                    raise ValueError(
+                        f"x0={self.x0!r} lies beyond the barrier at {self.model.barrier!r}; it must be >= barrier"
+                    )
+        else:
+            self._check_vector_start()
+
+    def _check_vector_start(self) -> None:
+        """A model of ``n`` coordinates: ``x0``, ``v0`` scalars or ``(n,)``; ``x0`` admissible; no random parameters."""
+        n = self.model.dimension
+        for name in ("x0", "v0"):
+            value = getattr(self, name)
+            if value is not None:
+                check_real(name, value)
+                if np.ndim(value) not in (0, 1) or np.ndim(value) == 1 and np.shape(value)[0] != n:
+                    raise ValueError(f"{name} must be a scalar or have shape ({n},), got shape {list(np.shape(value))}")
+        x0 = concrete(self.initial_state()[0])
+        cons = self.model.stacked_constraints()
+        if x0 is not None and cons is not None and concrete(cons.position) is not None:
+            c = cons.normal @ np.broadcast_to(x0, (n,)) - concrete(cons.position)
+            if np.any(c < 0):
+                j = int(np.argmin(c))
                 raise ValueError(
-                    f"x0={self.x0!r} lies beyond the barrier at {self.model.barrier!r}; it must be >= barrier"
+                    f"x0={np.broadcast_to(x0, (n,)).tolist()} violates constraints[{j}] (normal . x0 - position = "
+                    f"{c[j]:.3g} < 0); start inside the admissible set"
                 )
+        if self.random:
+            raise ValueError(f"random parameters are supported for one degree of freedom only; this model has {n}")
 
     def _checked_save_at(self, save_at) -> tuple[float, ...]:
         if save_at is None:
@@ -165,7 +193,10 @@ class Scene:
         return dataclasses.replace(self, **changes)
 
     def initial_state(self) -> tuple:
-        """``(x0, v0)``: the start of every path; ``x0=None`` means the barrier (0 without one)."""
+        """``(x0, v0)``: the start of every path; ``x0=None`` means the barrier (0 without one; 0 for several
+        degrees of freedom, ``jdpim.MDOFOscillator``)."""
+        if not isinstance(self.model, AbstractOscillator):
+            return (0.0 if self.x0 is None else self.x0), self.v0
         x0 = self.x0 if self.x0 is not None else (self.model.barrier if self.model.has_barrier else 0.0)
         return x0, self.v0
 

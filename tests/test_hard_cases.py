@@ -144,7 +144,8 @@ W_CUTOFF, W_TERMS, W_PATHS = 8 * math.pi, 64, 64
 @functools.partial(jax.jit, static_argnames="n_save")
 def _integrate_ladder(model, h, x0, v0, e, slots, n_save):
     n = x0.shape[0]
-    return integrate(lambda r: model, ImpactRule(), h, x0, v0, e, jnp.zeros((n, 0), x0.dtype), slots, n_save, n_save)
+    rand = jnp.zeros((n, 0), x0.dtype)
+    return integrate(lambda r: model, ImpactRule(), h, x0[:, None], v0[:, None], e, rand, slots, n_save, n_save)
 
 
 @pytest.fixture(scope="module")

@@ -40,7 +40,8 @@ def run_paths(model, rule, dt, t_end, x0, v0, xi=None, save_every=None, n_steps=
     slots = np.full(total, n_save, dtype=np.int32)
     slots[every - 1 : steps : every] = np.arange(n_save)
     f64 = functools.partial(jnp.asarray, dtype=jnp.float64)
-    out = _integrate_paths(model, rule, f64(dt), f64(x0), f64(v0), f64(e), jnp.asarray(slots), n_save)
+    q0, v0 = f64(x0)[:, None], f64(v0)[:, None]  # one coordinate per path
+    out = _integrate_paths(model, rule, f64(dt), q0, v0, f64(e), jnp.asarray(slots), n_save)
     return np.asarray(out), dt * every * np.arange(1, n_save + 1)
 
 
@@ -113,9 +114,10 @@ def test_impact_map_energy_loss(r):
         x0, v0 = speed * jnp.sin(s * h), -speed * jnp.cos(s * h)  # the free path hits x = 0 at s h
         x1, v1 = x0 * jnp.cos(h) + v0 * jnp.sin(h), -x0 * jnp.sin(h) + v0 * jnp.cos(h)
         e = jnp.zeros((19, 3, 1))
-        (_, v_plus), theta, (x2, v2) = jax.vmap(lambda *a: _resolve_one(model, ImpactRule(), h, *a))(
-            (x0, v0), jnp.zeros(19), (x1, v1), e
+        (_, v_plus), theta, (x2, v2), _ = jax.vmap(lambda *a: _resolve_one(model, ImpactRule(), h, *a))(
+            (x0[:, None], v0[:, None]), jnp.zeros(19), (x1[:, None], v1[:, None]), jnp.full(19, -1), e
         )
+        v_plus, x2, v2 = v_plus[:, 0], x2[:, 0], v2[:, 0]
         energy_before = 0.5 * (x0**2 + v0**2)
         lost = energy_before - 0.5 * (x2**2 + v2**2)
         v_minus = -speed  # analytic impact velocity
@@ -162,7 +164,8 @@ def test_departure_root_of_force_quadratic():
     model = jdpim.Oscillator(r=0.5)  # a = xi: the force at rest is the excitation itself
     forces = ([-1.0, 0.5, 1.0], [-1.0, -0.5, -0.1], [0.3, -1.0, 1.0], [-1.0, 1.0, -1.0], [0.2, 0.1, 0.2])
     with jax.enable_x64(True):
-        roots = [float(departure(model, jnp.asarray(f, jnp.float64)[:, None], 0.0)) for f in forces]
+        rest, normal = jnp.zeros(1), jnp.ones(1)  # at rest on the barrier x >= 0
+        roots = [float(departure(model, jnp.asarray(f)[:, None], 0.0, normal, rest)) for f in forces]
     # f = -1 + 3 tau - ... : quadratic through (0,-1), (1/2, 1/2), (1, 1) -> q = -1 + 4 tau - 2 tau^2, root 1 - 1/sqrt2
     assert roots[0] == pytest.approx(1 - 1 / math.sqrt(2), abs=1e-12)
     assert roots[1] == 1.0  # never pulls away within the step

@@ -143,8 +143,8 @@ def test_accumulator_sums_the_noise_increments():
     T_, n, h = 10, 3, 0.1
     exc = jnp.asarray(np.random.default_rng(0).normal(size=(2 * T_ + 1, n, 1)), jnp.float32)
     slots = jnp.asarray([2] * 4 + [0] + [2] * 4 + [1], jnp.int32)  # save after steps 5 and 10
-    args = (lambda _: model, ImpactRule(), h, jnp.zeros(n), jnp.zeros(n), exc, jnp.zeros((n, 0)), slots, 2, 2)
-    states, sums = integrate(*args, accumulate=lambda m, x, v, dw: jnp.stack([dw[0], jnp.ones_like(x)]))
+    args = (lambda _: model, ImpactRule(), h, jnp.zeros((n, 1)), jnp.zeros((n, 1)), exc, jnp.zeros((n, 0)), slots, 2, 2)
+    states, sums = integrate(*args, accumulate=lambda m, q, v, dw: jnp.stack([dw[0], jnp.ones_like(q[0])]))
     np.testing.assert_array_equal(np.asarray(states), np.asarray(integrate(*args)))
     e = np.asarray(exc)[:, :, 0]
     incr = h / 6 * (e[0:-1:2] + 4 * e[1::2] + e[2::2])  # Simpson's rule per step

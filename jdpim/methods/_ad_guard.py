@@ -17,6 +17,7 @@ import warnings
 import jax
 import numpy as np
 
+from .._models import AbstractOscillator
 from .._pytree import concrete
 from .._scene import Scene
 from .._warnings import SensitivityWarning
@@ -30,13 +31,19 @@ GRAZING = (
 
 
 def starts_grazing(scene: Scene) -> bool:
-    """Whether every path starts at rest on the barrier (``x0`` at the barrier or ``None``, ``v0 = 0``)."""
+    """Whether every path starts at rest on a constraint (``x0`` on the barrier or ``None``, ``v0 = 0``)."""
     model = scene.model
     if not model.has_barrier or any(name in ("x0", "v0") for name, _ in scene.random):
         return False
     x0, v0 = (concrete(z) for z in scene.initial_state())
-    b = concrete(model.barrier)
-    return x0 is not None and v0 is not None and b is not None and bool(np.all(v0 == 0) and np.all(x0 == b))
+    if isinstance(model, AbstractOscillator):
+        normal, b = np.ones((1, 1)), concrete(model.barrier)
+    else:  # read from the fields: inside a trace the stacked constraints are staged, not concrete
+        normal, b = np.array([c.normal for c in model.constraints]), concrete([c.position for c in model.constraints])
+    if x0 is None or v0 is None or b is None:
+        return False
+    c = normal @ np.broadcast_to(x0, (model.dimension,)) - b
+    return bool(np.all(v0 == 0) and np.any(c == 0))
 
 
 def guard(scene: Scene) -> Scene:

@@ -231,7 +231,11 @@ def _validate(scene: Scene, settings: PathIntegration, initial, stationary: bool
     if not isinstance(settings, PathIntegration):
         raise TypeError(f"settings must be a jdpim.PathIntegration, got {settings!r}")
     if not isinstance(scene.model, AbstractOscillator):
-        raise TypeError(f"scene.model must be an oscillator, got {scene.model!r}")
+        n = getattr(scene.model, "dimension", None)
+        raise ValueError(
+            f"path integration needs a grid of dimension 2n, here {2 * n} (the model has {n} degrees of freedom): "
+            "it solves one-degree-of-freedom scenes; use jdpim.DPIM or jdpim.MonteCarlo"
+        )
     if scene.random:
         raise ValueError(
             f"path integration does not take random parameters (scene.random={dict(scene.random)!r}); "

@@ -104,7 +104,7 @@ def _path_inputs(scene: Scene, kind: str, row):
 
 
 def _simulate_chunk(scene: Scene, kind: str, rows, accumulate=None):
-    """States ``(n, S, 2)`` of one chunk of paths (and the running sums of ``accumulate``, see ``integrate``)."""
+    """States ``(n, S, 2 d)`` of one chunk of paths (and the running sums of ``accumulate``, see ``integrate``)."""
     dtype = scene.float_dtype
     coeffs, rand = jax.vmap(functools.partial(_path_inputs, scene, kind))(rows)
     excitation = synthesize(coeffs, scene.spectral_grid()).astype(dtype)
@@ -115,10 +115,10 @@ def _simulate_chunk(scene: Scene, kind: str, rows, accumulate=None):
     def path_model(r):
         return scene.model if r is None else with_random_parameters(scene.model, model_names, r[model_cols])
 
-    n = rows.shape[0]
+    shape = (rows.shape[0], scene.model.dimension)
     x_start, v_start = scene.initial_state()
-    x0 = rand[:, names.index("x0")] if "x0" in names else jnp.full((n,), x_start, dtype)
-    v0 = rand[:, names.index("v0")] if "v0" in names else jnp.full((n,), v_start, dtype)
+    x0 = rand[:, names.index("x0"), None] if "x0" in names else jnp.broadcast_to(jnp.asarray(x_start, dtype), shape)
+    v0 = rand[:, names.index("v0"), None] if "v0" in names else jnp.broadcast_to(jnp.asarray(v_start, dtype), shape)
     save_steps = scene.save_steps
     slot_of = {s: i for i, s in enumerate(save_steps)}
     n_save = len(save_steps)
@@ -307,8 +307,7 @@ def run_paths(
 
 
 def _finish(scene: Scene, states, weights, method: str) -> Result:
-    barrier = scene.model.barrier if scene.model.has_barrier else None
-    res = Result(scene.save_at, states, weights, barrier, method, scene.model.coordinates)
+    res = Result(scene.save_at, states, weights, scene.model.bounds(), method, scene.model.coordinates)
     counts = concrete(res.n_nonfinite())
     if counts is not None and counts.any():
         warnings.warn(

@@ -26,7 +26,8 @@ class Result(AbstractResult):
         states: the state of every path at every saved time, shape ``(N, S, n_state)`` (path axis leading;
             ``n_state = 2``, ``(x, v)``, for one degree of freedom).
         weights: probability of each path, shape ``(N,)``, summing to 1.
-        barrier: barrier position (the displacement kernel is reflected there), or ``None``.
+        barrier: barrier position (the displacement kernel is reflected there), or ``None``; for several
+            degrees of freedom a mapping ``{coordinate: lower bound}`` of the coordinates a constraint bounds.
         method: ``"dpim"`` or ``"monte_carlo"``.
         coordinates: names of the state's entries, ``("x", "v")`` for one degree of freedom.
 
@@ -57,7 +58,9 @@ class Result(AbstractResult):
         return jax.vmap(which)(at) if callable(which) else at[:, which]
 
     def _reflect(self, var):
-        """The barrier where the kernel of ``var`` is reflected: the displacement's, else ``None``."""
+        """Where the kernel of ``var`` is reflected (the barrier of ``x``, a bounded coordinate), or ``None``."""
+        if isinstance(self.barrier, dict):
+            return self.barrier.get(var) if isinstance(var, str) else None
         return self.barrier if var == "x" else None
 
     def n_nonfinite(self):

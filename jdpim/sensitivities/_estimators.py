@@ -219,6 +219,7 @@ class Score:
     dt: float
 
     def __call__(self, model, x, v, dw):
+        x, v = x[0], v[0]  # one degree of freedom: the state's vectors have one entry
         h = model.gains(x, v)[0]
         out = []
         for name in self.names:

@@ -1,0 +1,187 @@
+r"""Systems with several degrees of freedom: ``M q'' + C q' + K q = f(q, q') + B xi(t)``, ``q`` in R^n.
+
+Unilateral constraints ``n_j . q >= b_j`` (:class:`Barrier`), each with its own restitution ``r_j``, act
+through the generalised Newton impact law (``jdpim._constraints``): a mass against a wall is
+``normal = e_i``, two masses closing a gap ``normal = e_i - e_k``, a clearance two constraints.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import jax.numpy as jnp
+import numpy as np
+
+from ._constraints import Constraints, dot
+from ._models import AbstractSystem
+from ._pytree import check_real, concrete, plain, pytree_dataclass, static_field
+
+
+@pytree_dataclass
+class Barrier:
+    r"""The unilateral constraint ``normal . q >= position``, with restitution ``r``.
+
+    Args:
+        normal: the constraint's normal, one number per coordinate (constant structure: a tuple of floats),
+            not all zero. ``(1, 0)``: the first mass stays right of ``position``; ``(-1, 1)``: the second mass
+            stays at least ``position`` right of the first (a gap; ``(1, -1)`` with ``-position``: at most).
+        position: the offset ``b`` (units of ``q``; traced).
+        r: the coefficient of restitution in [0, 1] (traced).
+
+    Example:
+        >>> import jdpim
+        >>> jdpim.Barrier(normal=(-1.0, 1.0), position=-0.1, r=0.6).normal
+        (-1.0, 1.0)
+    """
+
+    normal: tuple = static_field(default=(1.0,))
+    position: Any = 0.0
+    r: Any = 1.0
+
+    def __post_init__(self):
+        arr = concrete(self.normal)
+        if arr is None or arr.ndim != 1 or arr.size == 0 or not np.issubdtype(arr.dtype, np.number):
+            raise TypeError(f"normal must be a sequence of numbers, one per coordinate, got {self.normal!r}")
+        check_real("normal", arr)
+        if not np.any(arr != 0):
+            raise ValueError(f"normal must not be zero, got {plain(self.normal)!r}")
+        object.__setattr__(self, "normal", tuple(float(a) for a in arr))
+        check_real("position", self.position, scalar=True)
+        check_real("r", self.r, low=0.0, high=1.0, scalar=True)
+
+
+def _matrix(name: str, value, n: int, square: bool = True) -> None:
+    """Check ``value`` is a real ``(n, n)`` matrix (``(n, m)`` unless ``square``) where it is an array."""
+    if isinstance(value, (str, bytes)):
+        raise TypeError(f"{name} must be a matrix of numbers, got {value!r}")
+    arr = concrete(value)
+    shape = arr.shape if arr is not None else getattr(value, "shape", None)
+    if shape is None:
+        return  # a placeholder JAX put in while rebuilding the model
+    if len(shape) != 2 or shape[0] != n or (square and shape[1] != n) or shape[1] == 0:
+        want = f"({n}, {n})" if square else f"({n}, m)"
+        raise ValueError(f"{name} must be a matrix of shape {want}, got shape {list(shape)}")
+    if arr is not None:
+        check_real(name, arr)
+
+
+@pytree_dataclass
+class MDOFOscillator(AbstractSystem):
+    r"""``M q'' + C q' + K q = f(q, q', params) + B xi(t)`` with unilateral constraints ``n_j . q >= b_j``.
+
+    Args:
+        mass: ``M``, ``(n, n)`` symmetric positive definite (constant structure: not traced, not differentiable).
+        gains: ``B``, ``(n, m)`` for ``m`` white-noise sources (traced).
+        damping: ``C``, ``(n, n)`` (traced), or ``None`` for none.
+        stiffness: ``K``, ``(n, n)`` (traced), or ``None`` for none.
+        constraints: a tuple of :class:`Barrier`, each with a normal of length ``n``.
+        force: an extra force ``f(q, v, params) -> (n,)`` (JAX-traceable, one path), or ``None``.
+        params: a pytree of parameters of ``force`` (traced).
+        names: the coordinates' names (``n`` strings), or ``None`` for ``x1 .. xn``; a velocity is named
+            ``v`` + what follows the ``x`` of a name that starts with one (``x1`` -> ``v1``), else ``v_`` + the name.
+
+    The impact law on constraint ``j`` is ``v+ = v- - (1 + r_j) (n_j . v-) M^-1 n_j / (n_j . M^-1 n_j)``.
+
+    Example:
+        >>> import jdpim
+        >>> two = jdpim.MDOFOscillator(mass=[[1.0, 0.0], [0.0, 0.5]], gains=[[1.0], [0.0]],
+        ...                            damping=[[0.1, 0.0], [0.0, 0.05]], stiffness=[[2.0, -1.0], [-1.0, 1.0]],
+        ...                            constraints=(jdpim.Barrier(normal=(1.0, 0.0), position=-0.5, r=0.8),))
+        >>> two.coordinates
+        ('x1', 'x2', 'v1', 'v2')
+    """
+
+    mass: tuple = static_field()
+    gains: Any = None
+    damping: Any = None
+    stiffness: Any = None
+    constraints: tuple = ()
+    force: Callable | None = static_field(default=None)
+    params: Any = None
+    names: tuple | None = static_field(default=None)
+
+    def __post_init__(self):
+        m = concrete(self.mass)
+        if m is None or m.ndim != 2 or m.shape[0] != m.shape[1] or m.shape[0] == 0:
+            raise ValueError(f"mass must be a square (n, n) matrix of numbers, got {plain(self.mass)!r}")
+        check_real("mass", m)
+        if not np.allclose(m, m.T, rtol=1e-12, atol=0.0) or np.linalg.eigvalsh(m).min() <= 0:
+            raise ValueError(f"mass must be symmetric positive definite, got {m.tolist()}")
+        object.__setattr__(self, "mass", tuple(tuple(float(a) for a in row) for row in m))
+        n = m.shape[0]
+        if self.gains is None:
+            raise ValueError("gains must be given: the (n, m) matrix B of the noise sources' forces")
+        _matrix("gains", self.gains, n, square=False)
+        for name in ("damping", "stiffness"):
+            if getattr(self, name) is not None:
+                _matrix(name, getattr(self, name), n)
+        constraints = self.constraints
+        if not isinstance(constraints, (tuple, list)) or not all(isinstance(c, Barrier) for c in constraints):
+            raise TypeError(f"constraints must be a tuple of jdpim.Barrier, got {constraints!r}")
+        object.__setattr__(self, "constraints", tuple(constraints))
+        for j, c in enumerate(self.constraints):
+            if len(c.normal) != n:
+                raise ValueError(f"constraints[{j}].normal has {len(c.normal)} entries; the system has {n} coordinates")
+        if self.force is not None and not callable(self.force):
+            raise TypeError(f"force must be callable or None, got {self.force!r}")
+        if self.names is not None:
+            names = tuple(self.names)
+            if len(names) != n or not all(isinstance(s, str) and s for s in names) or len(set(names)) != n:
+                raise ValueError(f"names must be {n} distinct non-empty strings, got {self.names!r}")
+            object.__setattr__(self, "names", names)
+
+    @property
+    def dimension(self) -> int:
+        return len(self.mass)
+
+    @property
+    def n_sources(self) -> int:
+        return int(np.shape(self.gains)[1])
+
+    @property
+    def coordinates(self) -> tuple[str, ...]:
+        """``(x1 .. xn, v1 .. vn)``, or the given names and their velocities."""
+        names = self.names or tuple(f"x{i + 1}" for i in range(self.dimension))
+        vel = tuple("v" + s[1:] if s[0] == "x" else "v_" + s for s in names)
+        return names + vel
+
+    @property
+    def has_barrier(self) -> bool:
+        return bool(self.constraints)
+
+    def bounds(self) -> dict | None:
+        """``{name: lower bound}`` of the coordinates a constraint bounds from below (``normal = c e_i``, ``c > 0``):
+        density kernels are reflected there. ``None`` if there are none."""
+        out = {}
+        for c in self.constraints:
+            nz = [i for i, a in enumerate(c.normal) if a != 0]
+            if len(nz) == 1 and c.normal[nz[0]] > 0:
+                name, bound = self.coordinates[nz[0]], c.position / c.normal[nz[0]]
+                out[name] = bound if name not in out else jnp.maximum(out[name], bound)
+        return out or None
+
+    def inverse_mass(self) -> np.ndarray:
+        return np.linalg.inv(np.asarray(self.mass))
+
+    def state_acceleration(self, q, v, xi):
+        """``q'' = M^-1 (f - C v - K q + B xi)`` for one path: ``q``, ``v`` ``(n,)``, ``xi`` ``(m,)``."""
+        dtype = jnp.result_type(q)
+        force = dot(jnp.asarray(self.gains, dtype), xi)
+        if self.damping is not None:
+            force = force - dot(jnp.asarray(self.damping, dtype), v)
+        if self.stiffness is not None:
+            force = force - dot(jnp.asarray(self.stiffness, dtype), q)
+        if self.force is not None:
+            force = force + jnp.reshape(self.force(q, v, self.params), (self.dimension,))
+        return dot(jnp.asarray(self.inverse_mass(), dtype), force)
+
+    def stacked_constraints(self) -> Constraints | None:
+        if not self.constraints:
+            return None
+        normal = np.array([c.normal for c in self.constraints])
+        m_inv_n = normal @ self.inverse_mass()  # rows M^-1 n_j (M symmetric)
+        push = m_inv_n / np.sum(m_inv_n * normal, axis=1, keepdims=True)
+        position = jnp.stack([jnp.asarray(c.position) for c in self.constraints])
+        r = jnp.stack([jnp.asarray(c.r) for c in self.constraints])
+        return Constraints(normal, position, r, push)
