@@ -119,8 +119,12 @@ class Scene:
                 if np.ndim(value) not in (0, 1) or np.ndim(value) == 1 and np.shape(value)[0] != n:
                     raise ValueError(f"{name} must be a scalar or have shape ({n},), got shape {list(np.shape(value))}")
         x0 = concrete(self.initial_state()[0])
-        cons = self.model.stacked_constraints()
-        if x0 is not None and cons is not None and concrete(cons.position) is not None:
+        leaves = jax.tree_util.tree_leaves(self.model)
+        if x0 is None or any(concrete(leaf) is None for leaf in leaves):
+            cons = None  # traced or placeholder leaves (jit, lower): checked where the scene is built
+        else:
+            cons = self.model.stacked_constraints()
+        if cons is not None:
             c = cons.normal @ np.broadcast_to(x0, (n,)) - concrete(cons.position)
             if np.any(c < 0):
                 j = int(np.argmin(c))

@@ -222,3 +222,18 @@ def test_scene_checks_the_start_and_path_integration_refuses():
     scene = jdpim.Scene(model, noise=noise, t_end=1.0, dt=0.01)
     with pytest.raises(ValueError, match="path integration needs a grid of dimension 2n, here 4"):
         jdpim.solve(scene, jdpim.PathIntegration())
+
+
+def test_a_scene_of_several_degrees_of_freedom_passes_through_jit_and_lower():
+    """The scene is a pytree argument: jit and AOT lowering rebuild it with tracers or placeholders as leaves."""
+    damper = jdpim.MDOFOscillator(
+        mass=np.diag([1.0, 0.05]),
+        gains=[[1.0], [0.0]],
+        stiffness=np.diag([1.0, 0.0]),
+        constraints=(jdpim.Barrier((-1.0, 1.0), -0.1, 0.5), jdpim.Barrier((1.0, -1.0), -0.1, 0.5)),
+    )
+    scene = jdpim.Scene(damper, noise=jdpim.WhiteNoise(D=0.01), t_end=1.0, dt=0.01)
+    direct = jdpim.solve(scene, jdpim.MonteCarlo(n_samples=64, seed=0)).states
+    jitted = jax.jit(lambda s: jdpim.solve(s, jdpim.MonteCarlo(n_samples=64, seed=0)).states)
+    np.testing.assert_array_equal(np.asarray(jitted(scene)), np.asarray(direct))
+    assert jax.jit(lambda s: s.t_end * 2.0).lower(scene).compile()(scene) == 2.0
