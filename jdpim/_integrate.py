@@ -37,7 +37,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import itertools
-from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -579,10 +578,3 @@ def integrate(
     init = ((q0, v0, buf), sums, jnp.zeros((n_save + 1, n, k), q0.dtype))
     ((_, _, buf), _, sums_buf), _ = jax.lax.scan(body_with_sums, init, (jnp.arange(T), slots))
     return jnp.moveaxis(buf[:n_save], 0, 1), jnp.moveaxis(sums_buf[:n_save], 0, 1)
-
-
-def with_random_parameters(model: Any, names: tuple[str, ...], values) -> Any:
-    """``model`` with the fields ``names`` replaced by ``values[i]`` (one path's random parameters)."""
-    if values is None or not names:
-        return model
-    return dataclasses.replace(model, **{name: values[i] for i, name in enumerate(names)})

@@ -15,7 +15,7 @@ import numpy as np
 
 from ._constraints import Constraints, dot
 from ._models import AbstractSystem
-from ._pytree import check_real, concrete, plain, pytree_dataclass, static_field
+from ._pytree import array_leaf, check_real, concrete, plain, pytree_dataclass, static_field
 
 
 @pytree_dataclass
@@ -112,10 +112,10 @@ class MDOFOscillator(AbstractSystem):
         n = m.shape[0]
         if self.gains is None:
             raise ValueError("gains must be given: the (n, m) matrix B of the noise sources' forces")
-        _matrix("gains", self.gains, n, square=False)
-        for name in ("damping", "stiffness"):
+        for name in ("gains", "damping", "stiffness"):
             if getattr(self, name) is not None:
-                _matrix(name, getattr(self, name), n)
+                object.__setattr__(self, name, array_leaf(name, getattr(self, name)))
+                _matrix(name, getattr(self, name), n, square=name != "gains")
         constraints = self.constraints
         if not isinstance(constraints, (tuple, list)) or not all(isinstance(c, Barrier) for c in constraints):
             raise TypeError(f"constraints must be a tuple of jdpim.Barrier, got {constraints!r}")

@@ -13,6 +13,7 @@ import numbers
 from typing import Any
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 
@@ -41,6 +42,24 @@ def concrete(value: Any) -> np.ndarray | None:
             return None
         return arr if arr.dtype != object else None
     return None
+
+
+def array_leaf(name: str, value: Any) -> Any:
+    """A nested list or tuple of numbers as one array (one pytree leaf, not a leaf per entry); else ``value``.
+
+    Raises a ``TypeError`` naming ``name`` for text, a ``ValueError`` for ragged rows.
+    """
+    if not isinstance(value, (list, tuple)):
+        return value
+    leaves = jax.tree_util.tree_leaves(value)
+    if any(isinstance(x, (str, bytes)) for x in leaves):
+        raise TypeError(f"{name} must be numbers, got {value!r}")
+    try:
+        if any(isinstance(x, jax.core.Tracer) for x in leaves):
+            return jnp.asarray(value)
+        return np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a rectangular array of numbers, got {value!r}") from None
 
 
 def plain(value: Any) -> Any:

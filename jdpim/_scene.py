@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import re
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -13,9 +14,10 @@ import numpy as np
 from ._distributions import ANGLE, Normal, Uniform
 from ._excitation import SpectralGrid, SpectralRepresentation
 from ._integrate import ImpactRule, Substeps
+from ._mdof import MDOFOscillator
 from ._models import AbstractOscillator, AbstractSystem, Oscillator, n_sources_of
 from ._noise import WhiteNoise
-from ._pytree import check_real, concrete, pytree_dataclass, static_field
+from ._pytree import array_leaf, check_real, concrete, pytree_dataclass, static_field
 
 NOISE_PARAMETERS = ("D",)  # parameters of the excitation, beside the model's
 _GRID_TOL = 1e-6  # relative tolerance (in steps) for times that must lie on the time grid
@@ -110,14 +112,16 @@ class Scene:
             self._check_vector_start()
 
     def _check_vector_start(self) -> None:
-        """A model of ``n`` coordinates: ``x0``, ``v0`` scalars or ``(n,)``; ``x0`` admissible; no random parameters."""
+        """A model of ``n`` coordinates: ``x0``, ``v0`` scalars or ``(n,)``; ``x0`` admissible."""
         n = self.model.dimension
         for name in ("x0", "v0"):
-            value = getattr(self, name)
-            if value is not None:
+            value = array_leaf(name, getattr(self, name))
+            object.__setattr__(self, name, value)
+            shape = getattr(value, "shape", None) if concrete(value) is None else np.shape(value)
+            if value is not None and shape is not None:  # a placeholder (jit, lower) has no shape to check
                 check_real(name, value)
-                if np.ndim(value) not in (0, 1) or np.ndim(value) == 1 and np.shape(value)[0] != n:
-                    raise ValueError(f"{name} must be a scalar or have shape ({n},), got shape {list(np.shape(value))}")
+                if len(shape) not in (0, 1) or len(shape) == 1 and shape[0] != n:
+                    raise ValueError(f"{name} must be a scalar or have shape ({n},), got shape {list(shape)}")
         x0 = concrete(self.initial_state()[0])
         leaves = jax.tree_util.tree_leaves(self.model)
         if x0 is None or any(concrete(leaf) is None for leaf in leaves):
@@ -132,8 +136,6 @@ class Scene:
                     f"x0={np.broadcast_to(x0, (n,)).tolist()} violates constraints[{j}] (normal . x0 - position = "
                     f"{c[j]:.3g} < 0); start inside the admissible set"
                 )
-        if self.random:
-            raise ValueError(f"random parameters are supported for one degree of freedom only; this model has {n}")
 
     def _checked_save_at(self, save_at) -> tuple[float, ...]:
         if save_at is None:
@@ -155,15 +157,15 @@ class Scene:
 
     def _checked_random(self, random) -> tuple[tuple[str, Uniform | Normal], ...]:
         items = tuple(random.items()) if isinstance(random, Mapping) else tuple(random)
-        leaves = {f.name for f in dataclasses.fields(self.model) if not f.metadata.get("static", False)}
+        starts = {"x0", "v0"} if isinstance(self.model, AbstractOscillator) else set()  # vector starts: fixed
+        allowed = set(model_parameter_names(self.model)) | starts
         for item in items:
             if not (isinstance(item, Sequence) and len(item) == 2):
                 raise TypeError(f"random must map parameter names to distributions, got {random!r}")
             name, dist = item
-            if name not in leaves | {"x0", "v0"}:
-                raise ValueError(
-                    f"random parameter {name!r} is not a model parameter; choose from {sorted(leaves | {'x0', 'v0'})}"
-                )
+            if name not in allowed:
+                shown = sorted(allowed) if len(allowed) <= 12 else sorted(allowed)[:12] + ["..."]
+                raise ValueError(f"random parameter {name!r} is not a model parameter; choose from {shown}")
             if not isinstance(dist, (Uniform, Normal)):
                 raise TypeError(f"random[{name!r}] must be jdpim.Normal or jdpim.Uniform, got {dist!r}")
         return tuple((str(n), d) for n, d in items)
@@ -242,30 +244,75 @@ def saved_index(save_at: Sequence[float], t: float) -> int:
 # ---- parameters by name -------------------------------------------------------------------------
 
 
+_MATRIX_ENTRY = re.compile(r"^(damping|stiffness|gains)\[(\d+),\s*(\d+)\]$")
+_CONSTRAINT = re.compile(r"^constraints\[(\d+)\]\.(r|position)$")
+
+
+def _has_params_key(model, name: str) -> bool:
+    return isinstance(model, (Oscillator, MDOFOscillator)) and isinstance(model.params, dict) and name in model.params
+
+
 def get_parameter(model, name: str):
-    """A model parameter by name: a field, or a key of ``Oscillator.params`` (a dict)."""
-    if isinstance(model, Oscillator) and isinstance(model.params, dict) and name in model.params:
+    """A model parameter by name: a field, a key of a dict ``params``, or for :class:`MDOFOscillator` a matrix
+    entry ``"damping[i,j]"`` (``stiffness``, ``gains``) or a constraint's ``"constraints[j].r"`` (``.position``)."""
+    if _has_params_key(model, name):
         return model.params[name]
+    if isinstance(model, MDOFOscillator):
+        if m := _MATRIX_ENTRY.match(name):
+            return jnp.asarray(getattr(model, m[1]))[int(m[2]), int(m[3])]
+        if m := _CONSTRAINT.match(name):
+            return getattr(model.constraints[int(m[1])], m[2])
     return getattr(model, name)
 
 
 def set_parameter(model, name: str, value):
-    """``model`` with the parameter ``name`` (a field or a key of ``Oscillator.params``) replaced."""
-    if isinstance(model, Oscillator) and isinstance(model.params, dict) and name in model.params:
+    """``model`` with the parameter ``name`` (as for :func:`get_parameter`) replaced by ``value`` (may be traced)."""
+    if _has_params_key(model, name):
         return model.replace(params={**model.params, name: value})
+    if isinstance(model, MDOFOscillator):
+        if m := _MATRIX_ENTRY.match(name):
+            matrix = jnp.asarray(getattr(model, m[1]))
+            return model.replace(**{m[1]: matrix.at[int(m[2]), int(m[3])].set(value)})
+        if m := _CONSTRAINT.match(name):
+            j = int(m[1])
+            changed = dataclasses.replace(model.constraints[j], **{m[2]: value})
+            return model.replace(constraints=model.constraints[:j] + (changed,) + model.constraints[j + 1 :])
     return model.replace(**{name: value})
+
+
+def with_model_parameters(model, names: tuple[str, ...], values) -> Any:
+    """``model`` with the parameters ``names`` set to ``values[i]`` (one path's random parameters)."""
+    for i, name in enumerate(names):
+        model = set_parameter(model, name, values[i])
+    return model
+
+
+def model_parameter_names(model) -> tuple[str, ...]:
+    """Names :func:`get_parameter` accepts for ``model`` (its traced scalars; matrices entry by entry)."""
+    if isinstance(model, MDOFOscillator):
+        names = []
+        for field in ("damping", "stiffness", "gains"):
+            if getattr(model, field) is not None:
+                rows, cols = np.shape(getattr(model, field))
+                names += [f"{field}[{i},{j}]" for i in range(rows) for j in range(cols)]
+        names += [f"constraints[{j}].{key}" for j in range(len(model.constraints)) for key in ("r", "position")]
+        keys = model.params if isinstance(model.params, dict) else {}
+        return tuple(names) + tuple(k for k in keys if isinstance(k, str) and k not in names)
+    fields = dataclasses.fields(model)
+    names = tuple(f.name for f in fields if not f.metadata.get("static", False) and f.name != "params")
+    if isinstance(model, Oscillator) and isinstance(model.params, dict):
+        names = names + tuple(k for k in model.params if k not in names and isinstance(k, str))
+    return names
 
 
 def parameter_names(scene: Scene) -> tuple[str, ...]:
     """Names of a scene's parameters (what ``with_parameters`` and ``jdpim.sensitivity`` accept).
 
-    The model's traced fields, the keys of a dict ``Oscillator.params``, and the noise intensity ``"D"``.
+    The model's traced fields, the keys of a dict ``params``, for :class:`jdpim.MDOFOscillator` its matrix
+    entries (``"damping[0,1]"``) and constraint parameters (``"constraints[0].r"``), and the noise intensity
+    ``"D"``.
     """
-    fields = dataclasses.fields(scene.model)
-    model = tuple(f.name for f in fields if not f.metadata.get("static", False) and f.name != "params")
-    if isinstance(scene.model, Oscillator) and isinstance(scene.model.params, dict):
-        model = model + tuple(k for k in scene.model.params if k not in model and isinstance(k, str))
-    return model + NOISE_PARAMETERS
+    return model_parameter_names(scene.model) + NOISE_PARAMETERS
 
 
 def with_parameters(scene: Scene, values: dict) -> Scene:

@@ -21,10 +21,10 @@ import numpy as np
 from .._cpu import host_memory
 from .._distributions import elementary_ppf
 from .._excitation import gaussian_coefficients, random_function_coefficients, synthesize
-from .._integrate import integrate, with_random_parameters
+from .._integrate import integrate
 from .._points import PointSet, select_points
 from .._pytree import check_int, concrete
-from .._scene import Scene
+from .._scene import Scene, with_model_parameters
 from ..results._samples import Result
 from ._ad_guard import guard
 from ._base import AbstractMethod
@@ -113,7 +113,7 @@ def _simulate_chunk(scene: Scene, kind: str, rows, accumulate=None):
     model_cols = jnp.asarray([names.index(n) for n in model_names], dtype=jnp.int32)
 
     def path_model(r):
-        return scene.model if r is None else with_random_parameters(scene.model, model_names, r[model_cols])
+        return scene.model if r is None else with_model_parameters(scene.model, model_names, r[model_cols])
 
     shape = (rows.shape[0], scene.model.dimension)
     x_start, v_start = scene.initial_state()
