@@ -29,6 +29,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
+from .._models import AbstractOscillator
 from .._pytree import check_real
 from .._scene import Scene, get_parameter, parameter_names, with_parameters
 from ..methods._base import AbstractMethod
@@ -273,6 +274,11 @@ def sensitivity(
     """
     if not isinstance(scene, Scene):
         raise TypeError(f"scene must be a jdpim.Scene, got {type(scene).__name__}")
+    if not isinstance(scene.model, AbstractOscillator):
+        raise ValueError(
+            f"jdpim.sensitivity takes one-degree-of-freedom scenes; this model has {scene.model.dimension} "
+            "(difference jdpim.solve runs of the same seed instead: jdpim.with_parameters)"
+        )
     if var not in VARIABLES:
         raise ValueError(f"var must be one of {VARIABLES}, got {var!r}")
     if method is not None and not isinstance(method, AbstractMethod):
