@@ -1,4 +1,4 @@
-"""``python -m jdpim.bench {accuracy,budget,speed,throughput,sensitivity} ...``: benchmarks."""
+"""``python -m jdpim.bench {accuracy,budget,speed,throughput,sensitivity,mdof} ...``: benchmarks."""
 
 from __future__ import annotations
 
@@ -38,6 +38,9 @@ def main(argv=None, *, from_program=None) -> int:
         "--quick", action="store_true", help="float32 only, MCS 1e4 only; the NumPy baseline over 2000 steps"
     )
     speed.add_argument("--out", type=pathlib.Path, default=pathlib.Path("jdpim_out/bench"))
+    mdof = sub.add_parser("mdof", help="impact damper: dt convergence against a small-dt reference, speed per dof")
+    mdof.add_argument("--quick", action="store_true", help="t_end 20 s, 4000 paths; speed at 1e4 paths, t = 50 s")
+    mdof.add_argument("--out", type=pathlib.Path, default=pathlib.Path("jdpim_out/bench"))
     thr = sub.add_parser("throughput", help="path-steps per second against batch and chunk size, all devices")
     thr.add_argument("--sizes", type=_positive_int, nargs="+", default=[1000, 10_000], help="numbers of paths")
     thr.add_argument(
@@ -76,6 +79,10 @@ def main(argv=None, *, from_program=None) -> int:
         from .speed import run_speed
 
         files = run_speed(args.out, quick=args.quick, log=lambda s: print(s, flush=True))
+    elif args.command == "mdof":
+        from .mdof import run_mdof
+
+        files = run_mdof(args.out, quick=args.quick, log=lambda s: print(s, flush=True))
     elif args.command == "throughput":
         from .throughput import run_throughput
 
