@@ -3,6 +3,7 @@
 Grids are small (compile time dominates); float64 runs inside ``jax.enable_x64`` so nothing leaks.
 """
 
+import math
 import warnings
 
 import jax
@@ -211,3 +212,12 @@ def test_bad_inputs_are_named():
                 "x", 2, 20.0
             )
         )(0.01)
+
+
+def test_a_stationary_density_refuses_a_finite_time():
+    """A stationary result holds the limit t -> inf: a finite t is an error, not silently the stationary density."""
+    res = jdpim.path_integration(elastic("float32"), SMALL, stationary=True)
+    grid = np.linspace(0.0, 1.0, 5)
+    np.testing.assert_array_equal(np.asarray(res.pdf("x", grid, t=math.inf)), np.asarray(res.pdf("x", grid)))
+    with pytest.raises(ValueError, match="t=5.0 for a stationary density"):
+        res.pdf("x", grid, t=5.0)

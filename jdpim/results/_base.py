@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 from .._scene import saved_index
@@ -28,8 +29,10 @@ class AbstractResult:
     stationary: bool = False
 
     def _index(self, t) -> int:
-        """Index of the saved time ``t`` (``None``: the only one, or the stationary density)."""
+        """Index of the saved time ``t`` (``None``: the only one, or the stationary density, whose time is ``inf``)."""
         if self.stationary:
+            if t is not None and not (isinstance(t, (int, float)) and math.isinf(t) and t > 0):
+                raise ValueError(f"t={t!r} for a stationary density (t = inf): leave t out, or pass t=math.inf")
             return 0
         if t is None:
             if len(self.times) == 1:
