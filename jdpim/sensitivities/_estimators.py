@@ -186,10 +186,10 @@ class CentralDifference(AbstractEstimator):
 
     def pair(self, name: str, value: float) -> tuple[float, float]:
         """The two parameter values ``(lo, hi)`` of the difference, inside the parameter's range."""
-        d = self.step if self.step is not None else (0.01 if name == "r" else 0.05 * max(abs(value), 1e-2))
-        low, high = {"r": (0.0, 1.0), "alpha": (0.0, math.inf), "gamma": (0.0, math.inf), "D": (0.0, math.inf)}.get(
-            name, (-math.inf, math.inf)
-        )
+        restitution = name == "r" or name.endswith("].r")  # the oscillator's r, or a constraint's
+        d = self.step if self.step is not None else (0.01 if restitution else 0.05 * max(abs(value), 1e-2))
+        bounds = {"alpha": (0.0, math.inf), "gamma": (0.0, math.inf), "D": (0.0, math.inf)}
+        low, high = (0.0, 1.0) if restitution else bounds.get(name, (-math.inf, math.inf))
         lo, hi = value - d, value + d
         if hi > high:
             lo, hi = high - 2 * d, high

@@ -50,6 +50,7 @@ from ._estimators import (
     window_of,
 )
 from ._path_integration import default_settings, grid_sensitivity, nominal_run
+from ._several_dof import several_dof_sensitivity
 
 VARIABLES = ("x", "v", "xv")
 DEFAULT_PATHS = 100_000  # Monte Carlo paths of method=None where path integration does not apply: ~5 %
@@ -226,7 +227,10 @@ def sensitivity(
         scene: the scene; its parameter values are the point of differentiation.
         wrt: parameter names (see :func:`jdpim.parameter_names`: ``alpha``, ``gamma``, ``r``, ``barrier``,
             ``omega``, ``D`` for :class:`VibroImpactOscillator`; keys of a dict ``Oscillator.params``).
-        var: ``"x"``, ``"v"`` (marginal PDFs) or ``"xv"`` (joint PDF).
+        var: ``"x"``, ``"v"`` (marginal PDFs) or ``"xv"`` (joint PDF). Several degrees of freedom
+            (:class:`jdpim.MDOFOscillator`): a coordinate name (``"x1"``, ``"v2"``) or a function of the state;
+            the estimator is then :class:`CentralDifference` (the only one; ``estimator="auto"`` picks it) by
+            Monte Carlo (default ``MonteCarlo(n_samples=DEFAULT_PATHS)``) or DPIM.
         grid: evaluation grid, 1-D for ``"x"``/``"v"``, a pair ``(x_grid, v_grid)`` for ``"xv"``. Keep
             ``x`` nodes off the barrier when differentiating with respect to ``barrier``.
         t: a saved time of the scene (default: the last one); leave it out for a stationary density.
@@ -274,12 +278,8 @@ def sensitivity(
     """
     if not isinstance(scene, Scene):
         raise TypeError(f"scene must be a jdpim.Scene, got {type(scene).__name__}")
-    if not isinstance(scene.model, AbstractOscillator):
-        raise ValueError(
-            f"jdpim.sensitivity takes one-degree-of-freedom scenes; this model has {scene.model.dimension} "
-            "(difference jdpim.solve runs of the same seed instead: jdpim.with_parameters)"
-        )
-    if var not in VARIABLES:
+    several = not isinstance(scene.model, AbstractOscillator)
+    if var not in VARIABLES and not several:
         raise ValueError(f"var must be one of {VARIABLES}, got {var!r}")
     if method is not None and not isinstance(method, AbstractMethod):
         raise TypeError(
@@ -305,6 +305,11 @@ def sensitivity(
     else:
         t = scene.save_at[-1] if t is None else t
         t = scene.save_at[scene.time_index(t)]
+    if several:
+        value, stderr, estimators, method = several_dof_sensitivity(
+            scene, wrt, var, grid, t, method, bandwidth, rule, estimator
+        )
+        return Sensitivity(value, stderr, estimators, float(t), method.name)
     values = {name: _nominal(scene, name) for name in wrt}
     query = Query(wrt, values, var, grid, t, bandwidth, rule, estimator)
     if method is None:
