@@ -143,13 +143,15 @@ def densities(results: dict, times, grids: dict, joint_grids=None, joint_times=(
     """
     arrays = {}
     for name, res in results.items():
+        at = [None] * len(times) if getattr(res, "stationary", False) else times  # a stationary density has no t
+        joint_at = [None] * len(joint_times) if getattr(res, "stationary", False) else joint_times
         for var, g in grids.items():
-            arrays[f"{name}_pdf_{var}"] = np.stack([np.asarray(res.pdf(var, g, t)) for t in times])
+            arrays[f"{name}_pdf_{var}"] = np.stack([np.asarray(res.pdf(var, g, t)) for t in at])
             if _has_error(res):
-                arrays[f"{name}_stderr_{var}"] = np.stack([np.asarray(res.pdf_error(var, g, t)) for t in times])
+                arrays[f"{name}_stderr_{var}"] = np.stack([np.asarray(res.pdf_error(var, g, t)) for t in at])
         if joint_grids is not None:
             arrays[f"{name}_joint"] = np.stack(
-                [np.asarray(res.joint_pdf(("x", "v"), joint_grids, t)) for t in joint_times]
+                [np.asarray(res.joint_pdf(("x", "v"), joint_grids, t)) for t in joint_at]
             )
     return arrays
 
