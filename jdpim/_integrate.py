@@ -428,20 +428,22 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
 
     def plain_step(q, v, e, rand, h):
         """One step of every path; ``h`` is the step length, shared (scalar) or per path ``(n,)``."""
-        tau0 = jnp.zeros(q.shape[:1], q.dtype)  # as an array: the step's constants round in the state's dtype
+        tau0 = jnp.zeros(q.shape[:1], q.dtype)
+        # A path at rest starts at its own fraction of the step. A step without one takes the plain form (the
+        # forcing nodes themselves, the step's constants folded), which XLA keeps in fewer kernels.
+        start = per_path(free_from_start, h)
         if sticking:
-            # A path at rest starts at its own fraction of the step. A step without one takes the plain form
-            # (the forcing nodes themselves), which XLA keeps in fewer, unpartitioned kernels.
+
             def from_rest():
                 tau = jax.vmap(start_fraction)(q, v, e, rand)
                 return (*per_path(free, h)(q, v, e, rand, tau), tau)
 
             def from_start():
-                return (*per_path(free_from_start, h)(q, v, e, rand), tau0)
+                return (*start(q, v, e, rand), tau0)
 
             q1, v1, tau0 = jax.lax.cond(jnp.any(jax.vmap(rests)(q, v, rand)), from_rest, from_start)
         else:
-            q1, v1 = per_path(free, h)(q, v, e, rand, tau0)
+            q1, v1 = start(q, v, e, rand)
         if not constrained:
             return q1, v1
         if rule.method == "locate":
