@@ -5,7 +5,9 @@ import importlib.metadata as _metadata
 
 from . import exact as exact
 from . import figures as figures
+from . import filters as filters
 from . import metrics as metrics
+from . import systems as systems
 from ._cpu import use_cpu_cores as use_cpu_cores
 from ._distributions import Normal as Normal
 from ._distributions import Uniform as Uniform
@@ -31,6 +33,9 @@ from ._tuning import loo_log_likelihood as loo_log_likelihood
 from ._tuning import refine_points as refine_points
 from ._tuning import soft_voronoi_probabilities as soft_voronoi_probabilities
 from ._tuning import tune_bandwidth as tune_bandwidth
+from .filters import first_order_filter as first_order_filter
+from .filters import harmonic as harmonic
+from .filters import kanai_tajimi as kanai_tajimi
 from .methods._base import AbstractMethod as AbstractMethod
 from .methods._base import solve as solve
 from .methods._dpim import DPIM as DPIM
@@ -58,6 +63,9 @@ from .sensitivities._estimators import Pathwise as Pathwise
 from .sensitivities._estimators import SensitivityWarning as SensitivityWarning
 from .sensitivities._sensitivity import Sensitivity as Sensitivity
 from .sensitivities._sensitivity import sensitivity as sensitivity
+from .systems import gear_pair as gear_pair
+from .systems import impact_damper as impact_damper
+from .systems import pounding_frame as pounding_frame
 
 try:
     __version__ = _metadata.version("jdpim")

@@ -80,6 +80,8 @@ class MDOFOscillator(AbstractSystem):
         params: a pytree of parameters of ``force`` (traced).
         names: the coordinates' names (``n`` strings), or ``None`` for ``x1 .. xn``; a velocity is named
             ``v`` + what follows the ``x`` of a name that starts with one (``x1`` -> ``v1``), else ``v_`` + the name.
+        start: the coordinates every path starts from where the scene gives no ``x0`` (``n`` numbers, constant
+            structure), or ``None`` for zeros (a harmonic filter, :func:`jdpim.harmonic`, starts at 1).
 
     The impact law on constraint ``j`` is ``v+ = v- - (1 + r_j) (n_j . v-) M^-1 n_j / (n_j . M^-1 n_j)``.
 
@@ -100,6 +102,7 @@ class MDOFOscillator(AbstractSystem):
     force: Callable | None = static_field(default=None)
     params: Any = None
     names: tuple | None = static_field(default=None)
+    start: tuple | None = static_field(default=None)
 
     def __post_init__(self):
         m = concrete(self.mass)
@@ -130,6 +133,12 @@ class MDOFOscillator(AbstractSystem):
             if len(names) != n or not all(isinstance(s, str) and s for s in names) or len(set(names)) != n:
                 raise ValueError(f"names must be {n} distinct non-empty strings, got {self.names!r}")
             object.__setattr__(self, "names", names)
+        if self.start is not None:
+            start = concrete(self.start)
+            if start is None or start.shape != (n,) or not np.issubdtype(start.dtype, np.number):
+                raise ValueError(f"start must be {n} numbers (one per coordinate), got {self.start!r}")
+            check_real("start", start)
+            object.__setattr__(self, "start", tuple(float(a) for a in start))
 
     @property
     def dimension(self) -> int:

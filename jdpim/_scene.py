@@ -199,10 +199,13 @@ class Scene:
         return dataclasses.replace(self, **changes)
 
     def initial_state(self) -> tuple:
-        """``(x0, v0)``: the start of every path; ``x0=None`` means the barrier (0 without one; 0 for several
-        degrees of freedom, ``jdpim.MDOFOscillator``)."""
+        """``(x0, v0)``: the start of every path; ``x0=None`` means the barrier (0 without one; for several
+        degrees of freedom the model's ``start``, zeros if it has none)."""
         if not isinstance(self.model, AbstractOscillator):
-            return (0.0 if self.x0 is None else self.x0), self.v0
+            if self.x0 is not None:
+                return self.x0, self.v0
+            start = getattr(self.model, "start", None)
+            return (0.0 if start is None else np.asarray(start)), self.v0
         x0 = self.x0 if self.x0 is not None else (self.model.barrier if self.model.has_barrier else 0.0)
         return x0, self.v0
 

@@ -25,10 +25,10 @@ import numpy as np
 
 from .. import metrics
 from .._excitation import SpectralRepresentation
-from .._mdof import Barrier, MDOFOscillator
 from .._models import VibroImpactOscillator
 from .._noise import WhiteNoise
 from .._scene import Scene
+from ..systems import impact_damper
 from .timing import timed
 
 CUTOFF = 50.0  # rad/s: w_u dt = 2 at dt = 0.04
@@ -36,20 +36,9 @@ DTS = (0.04, 0.02, 0.01, 0.005)
 DT_REF = 0.0025
 
 
-def impact_damper(clearance: float = 0.1, r: float = 0.5) -> MDOFOscillator:
-    """Primary mass 1 (``omega = 1``, damping ratio 0.01) with a damper mass 0.05 in a clearance ``+-clearance``."""
-    return MDOFOscillator(
-        mass=np.diag([1.0, 0.05]),
-        gains=[[1.0], [0.0]],
-        damping=np.diag([0.02, 0.0]),
-        stiffness=np.diag([1.0, 0.0]),
-        constraints=(Barrier((-1.0, 1.0), -clearance, r), Barrier((1.0, -1.0), -clearance, r)),
-    )
-
-
 def damper_scene(t_end: float, dt: float) -> Scene:
     return Scene(
-        impact_damper(),
+        impact_damper(),  # the defaults: mass ratio 0.05, omega = 1, zeta = 0.01, clearance 0.1, r = 0.5
         noise=WhiteNoise(D=0.01),
         t_end=t_end,
         dt=dt,

@@ -1,0 +1,187 @@
+r"""Excitations beyond white noise, as filter coordinates appended to a :class:`jdpim.MDOFOscillator`.
+
+Each function returns a new model whose last coordinates are a linear filter driven by the scene's white
+noise (``E[w(t) w(t+s)] = 2 D delta(s)``); the structure feels the filter's output through the augmented
+damping and stiffness matrices. DPIM and Monte Carlo carry the filter like any other coordinate, densities
+of its coordinates are available by name, and its parameters are entries of the matrices
+(``jdpim.parameter_names(scene)``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+
+import jax.numpy as jnp
+import numpy as np
+
+from ._mdof import Barrier, MDOFOscillator
+from ._pytree import check_real
+from .systems import _number
+
+
+@dataclasses.dataclass(frozen=True)
+class _PaddedForce:
+    """A model's force ``f(q, v, params)`` on its ``n`` coordinates, zero on ``k`` filter coordinates appended."""
+
+    force: Callable
+    n: int
+    k: int
+
+    def __call__(self, q, v, params):
+        f = jnp.reshape(self.force(q[: self.n], v[: self.n], params), (self.n,))
+        return jnp.concatenate([f, jnp.zeros((self.k,), f.dtype)])
+
+
+def _block(model: MDOFOscillator, name: str, k: int) -> np.ndarray:
+    """``model``'s damping or stiffness matrix padded to ``(n + k, n + k)`` (zeros where absent)."""
+    n = model.dimension
+    out = np.zeros((n + k, n + k))
+    value = getattr(model, name)
+    if value is not None:
+        out[:n, :n] = np.asarray(value)
+    return out
+
+
+def _augment(model, names, mass, damping, stiffness, gains, start=None) -> MDOFOscillator:
+    """``model`` with the filter coordinates ``names`` appended: the filter rows of every matrix given."""
+    if not isinstance(model, MDOFOscillator):
+        raise TypeError(f"model must be a jdpim.MDOFOscillator, got {type(model).__name__}")
+    n, k = model.dimension, len(names)
+    base = model.coordinates[:n]
+    clash = sorted(set(base) & set(names))
+    if clash:
+        raise ValueError(f"the model already has coordinates named {clash}: name its coordinates (names=...)")
+    constraints = tuple(
+        Barrier(c.normal + (0.0,) * k, c.position, c.r) for c in model.constraints
+    )  # the filter is not constrained
+    force = None if model.force is None else _PaddedForce(model.force, n, k)
+    if start is None and model.start is not None:
+        start = model.start + (0.0,) * k
+    return MDOFOscillator(
+        mass=np.block([[np.asarray(model.mass), np.zeros((n, k))], [np.zeros((k, n)), mass]]),
+        gains=gains,
+        damping=damping,
+        stiffness=stiffness,
+        constraints=constraints,
+        force=force,
+        params=model.params,
+        names=base + tuple(names),
+        start=start,
+    )
+
+
+def _influence(model: MDOFOscillator, influence) -> np.ndarray:
+    n = model.dimension
+    iota = np.ones(n) if influence is None else np.asarray(influence, dtype=float)
+    if iota.shape != (n,):
+        raise ValueError(f"influence must have {n} entries (one per coordinate), got shape {list(iota.shape)}")
+    check_real("influence", iota)
+    return iota
+
+
+def kanai_tajimi(
+    model: MDOFOscillator, omega_g: float = 15.6, zeta_g: float = 0.6, influence=None
+) -> MDOFOscillator:
+    r"""``model`` shaken by a Kanai-Tajimi ground acceleration instead of its own forcing.
+
+    The filter coordinate ``xf`` (velocity ``vf``) obeys ``xf'' + 2 zeta_g omega_g xf' + omega_g^2 xf = -w(t)``;
+    the ground acceleration ``a_g = xf'' + w = -(2 zeta_g omega_g xf' + omega_g^2 xf)`` has the power spectral
+    density
+
+    .. math::
+        S_{a_g}(\omega) = S_0\,\frac{\omega_g^4 + 4\zeta_g^2\omega_g^2\omega^2}
+                                     {(\omega_g^2 - \omega^2)^2 + 4\zeta_g^2\omega_g^2\omega^2},
+        \qquad S_0 = D / \pi \ \text{(two-sided)},
+
+    and the structure feels ``-M iota a_g``: ``M q'' + C q' + K q = M iota (2 zeta_g omega_g xf' + omega_g^2 xf)``.
+    The model's own gains are not used (the scene's single noise source drives the filter).
+
+    Args:
+        model: the structure, ``n`` coordinates.
+        omega_g: the ground's frequency, rad/s, > 0 (15.6 with ``zeta_g = 0.6``: firm soil).
+        zeta_g: the ground's damping ratio, > 0.
+        influence: ``iota``, ``(n,)``: how each coordinate feels the ground (``None``: ones).
+
+    Example:
+        >>> import jdpim
+        >>> jdpim.kanai_tajimi(jdpim.pounding_frame(n_storeys=2)).coordinates
+        ('x1', 'x2', 'xf', 'v1', 'v2', 'vf')
+    """
+    wg = _number("omega_g", omega_g, low=0.0, low_open=True)
+    zg = _number("zeta_g", zeta_g, low=0.0, low_open=True)
+    iota = _influence(model, influence)
+    n = model.dimension
+    m_iota = np.asarray(model.mass) @ iota
+    damping, stiffness = _block(model, "damping", 1), _block(model, "stiffness", 1)
+    damping[:n, n], stiffness[:n, n] = -2.0 * zg * wg * m_iota, -wg * wg * m_iota
+    damping[n, n], stiffness[n, n] = 2.0 * zg * wg, wg * wg
+    gains = np.zeros((n + 1, 1))
+    gains[n, 0] = -1.0
+    return _augment(model, ("xf",), np.ones((1, 1)), damping, stiffness, gains)
+
+
+def first_order_filter(model: MDOFOscillator, a: float = 1.0) -> MDOFOscillator:
+    r"""``model`` driven by coloured noise: each of its white noises ``w_k`` replaced by ``y_k' = -a y_k + w_k``.
+
+    ``y_k`` has the exponential correlation ``E[y_k(t) y_k(t+s)] = (D / a) e^{-a |s|}`` (stationary variance
+    ``D / a``; the spectral density ``(D / pi) / (a^2 + omega^2)``). It is carried as the velocity of a filter
+    coordinate ``z_k`` with ``z_k'' + a z_k' = w_k`` (named ``xf`` / ``vf``, or ``xf1``, ``xf2``, ... for
+    several sources); the structure feels ``B y`` where it felt ``B w``. ``z_k`` itself diffuses without bound:
+    only its velocity is the filter's output.
+
+    Args:
+        model: the structure, ``n`` coordinates and ``m`` noise sources (gains ``B``, ``(n, m)``).
+        a: the filter's rate, 1/s, > 0 (its correlation time is ``1 / a``).
+
+    Example:
+        >>> import jdpim
+        >>> jdpim.first_order_filter(jdpim.impact_damper(), a=2.0).coordinates
+        ('x1', 'x2', 'xf', 'v1', 'v2', 'vf')
+    """
+    rate = _number("a", a, low=0.0, low_open=True)
+    if not isinstance(model, MDOFOscillator):
+        raise TypeError(f"model must be a jdpim.MDOFOscillator, got {type(model).__name__}")
+    n, m = model.dimension, model.n_sources
+    B = np.asarray(model.gains, dtype=float)
+    damping = _block(model, "damping", m)
+    damping[:n, n:] = -B
+    damping[n:, n:] = rate * np.eye(m)
+    gains = np.vstack([np.zeros((n, m)), np.eye(m)])
+    names = ("xf",) if m == 1 else tuple(f"xf{k + 1}" for k in range(m))
+    return _augment(model, names, np.eye(m), damping, _block(model, "stiffness", m), gains)
+
+
+def harmonic(model: MDOFOscillator, amplitude: float, frequency: float, direction=None) -> MDOFOscillator:
+    r"""``model`` with a harmonic force ``A cos(Omega t) b`` added to its white-noise forcing.
+
+    The cosine is the filter coordinate ``xh`` (velocity ``vh``) of ``xh'' + Omega^2 xh = 0`` that starts at
+    ``xh = 1``, ``vh = 0`` (the model's ``start``, used where the scene gives no ``x0``; a scene's ``x0`` must
+    put 1 there itself); the structure feels ``A b xh``.
+
+    Args:
+        model: the structure, ``n`` coordinates.
+        amplitude: ``A`` (units of force per unit mass of the model's matrices).
+        frequency: ``Omega``, rad/s, > 0.
+        direction: ``b``, ``(n,)`` (``None``: the model's first noise source's gains, ``B[:, 0]``).
+
+    Example:
+        >>> import jdpim
+        >>> jdpim.harmonic(jdpim.impact_damper(), amplitude=0.1, frequency=0.9).start
+        (0.0, 0.0, 1.0)
+    """
+    amp = _number("amplitude", amplitude)
+    w = _number("frequency", frequency, low=0.0, low_open=True)
+    if not isinstance(model, MDOFOscillator):
+        raise TypeError(f"model must be a jdpim.MDOFOscillator, got {type(model).__name__}")
+    n = model.dimension
+    b = np.asarray(model.gains, dtype=float)[:, 0] if direction is None else np.asarray(direction, dtype=float)
+    if b.shape != (n,):
+        raise ValueError(f"direction must have {n} entries (one per coordinate), got shape {list(b.shape)}")
+    check_real("direction", b)
+    stiffness = _block(model, "stiffness", 1)
+    stiffness[:n, n] = -amp * b
+    stiffness[n, n] = w * w
+    gains = np.vstack([np.asarray(model.gains, dtype=float), np.zeros((1, model.n_sources))])
+    start = (model.start or (0.0,) * n) + (1.0,)
+    return _augment(model, ("xh",), np.ones((1, 1)), _block(model, "damping", 1), stiffness, gains, start)
