@@ -1,8 +1,8 @@
 """Figures for print: symbols in mathtext, dimensionless axes cut to where the mass is, round contour levels.
 
 The helpers that ``jdpim run``, scene files, ``jdpim paper`` and the notebooks draw with:
-``pyplot()``, ``marginal(ax, grid, curves, var)``, ``joint(fig, axes, x, v, panels)``, ``scene_title(...)``
-and ``mass_range(samples, weights)``.
+``pyplot()``, ``marginal(ax, grid, curves, var)``, ``joint(fig, axes, x, v, panels)``, ``scene_title(...)``,
+``symbol(var)`` and ``mass_range(samples, weights)``.
 
 DPIM is drawn as a line, Monte Carlo as dots, references as thin dashed lines; a standard error, when
 given, is a band of plus or minus two standard errors around the curve (or error bars on the dots).
@@ -11,10 +11,11 @@ given, is a band of plus or minus two standard errors around the curve (or error
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 
-LABEL = {"x": r"$x$", "v": r"$x'$"}
+LABEL = {"x": r"$x$", "v": r"$x'$"}  # one degree of freedom; other coordinates: see symbol()
 UNIT = "(dimensionless)"
 STYLE = {
     "dpim": {"color": "C3", "ls": "-", "lw": 1.4},
@@ -34,6 +35,16 @@ def pyplot():
 
     plt.rcParams.update({"font.size": 9, "axes.titlesize": 9, "legend.fontsize": 7.5, "mathtext.fontset": "cm"})
     return plt
+
+
+def symbol(var: str) -> str:
+    """A coordinate's axis symbol in mathtext: ``"x"`` -> ``$x$``, ``"v"`` -> ``$x'$``, ``"x1"`` -> ``$x_{1}$``,
+    any other name upright (``"damper_x"`` -> ``$\\mathrm{damper\\_x}$``)."""
+    if var in LABEL:
+        return LABEL[var]
+    if m := re.fullmatch(r"([A-Za-z]+)_?(\d+)", var):
+        return f"${m[1]}_{{{m[2]}}}$"
+    return r"$\mathrm{" + var.replace("_", r"\_") + "}$"
 
 
 def scene_title(alpha, gamma, r, D) -> str:
@@ -108,14 +119,15 @@ def marginal(ax, grid, curves, var: str, *, n_dots: int = 40):
                 ax.fill_between(grid, p - 2 * se, p + 2 * se, color=style["color"], alpha=0.2, lw=0)
     ax.set_xlim(grid[0], grid[-1])
     ax.set_ylim(bottom=0)
-    ax.set_xlabel(f"{LABEL[var]} {UNIT}")
-    ax.set_ylabel(f"$p$({LABEL[var]})")
+    ax.set_xlabel(f"{symbol(var)} {UNIT}")
+    ax.set_ylabel(f"$p$({symbol(var)})")
 
 
-def joint(fig, axes, x_grid, v_grid, panels, *, cmap: str = "viridis"):
+def joint(fig, axes, x_grid, v_grid, panels, *, vars=("x", "v"), cmap: str = "viridis"):
     """Filled contours of joint PDFs ``panels = [(title, p[len(x_grid), len(v_grid)]), ...]`` on ``axes``.
 
-    Shared round levels (lowest near 1 % of the peak), one colour bar with round ticks.
+    ``vars``: the coordinates on the horizontal and vertical axes (names, as for :func:`symbol`). Shared round
+    levels (lowest near 1 % of the peak), one colour bar with round ticks.
     """
     p_max = max(float(np.max(p)) for _, p in panels)
     levels, ticks = contour_levels(p_max)
@@ -124,8 +136,8 @@ def joint(fig, axes, x_grid, v_grid, panels, *, cmap: str = "viridis"):
     for ax, (title, p) in zip(axes, panels, strict=True):
         cs = ax.contourf(x_grid, v_grid, np.asarray(p).T, levels=levels, cmap=cmap)
         ax.set_title(title)
-        ax.set_xlabel(f"{LABEL['x']} {UNIT}")
-    axes[0].set_ylabel(f"{LABEL['v']} {UNIT}")
+        ax.set_xlabel(f"{symbol(vars[0])} {UNIT}")
+    axes[0].set_ylabel(f"{symbol(vars[1])} {UNIT}")
     bar = fig.colorbar(cs, ax=list(axes), shrink=0.9, ticks=ticks)
-    bar.set_label(r"$p(x, x')$")
+    bar.set_label(f"$p({symbol(vars[0]).strip('$')}, {symbol(vars[1]).strip('$')})$")
     return levels

@@ -129,9 +129,9 @@ def reproduce(settings: Settings = QUICK, out="jdpim_out/paper", *, pdf: bool = 
                 f"{step} {settings.replicates} randomised DPIM replicates (error bands)",
             )
         results["reference"], _, _ = report.solve_timed(sc, REFERENCE_METHOD, log, f"{step} {REFERENCE}")
-        xg, vg = report.grids(sc, (results["dpim"], results["monte_carlo"]), settings.n_grid)
-        grids = {"x": xg, "v": vg}
-        d = report.densities(results, settings.save_at, grids, (xg[::2], vg[::2]), (t_last,))
+        grids = report.grids(sc, (results["dpim"], results["monte_carlo"]), settings.n_grid)
+        joints = {("x", "v"): (grids["x"][::2], grids["v"][::2])}
+        d = report.densities(results, settings.save_at, grids, joints, (t_last,))
         for var, g in grids.items():
             if reps:  # DPIM's error band: the spread of the replicates
                 runs = report.densities(dict(enumerate(reps)), settings.save_at, {var: g})

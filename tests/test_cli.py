@@ -93,7 +93,7 @@ def test_an_absent_term_is_not_in_the_model(tmp_path, spelling):
         ({"r": "1.5"}, "s.toml: [model] r: must lie in [0, 1], got 1.5"),
         ({"r": '"high"'}, "s.toml: [model] r: must be a number, got a string 'high'"),
         ({"alpha": "-1"}, "s.toml: [model] alpha: must lie in [0, inf), got -1"),
-        ({"kind": '"duffing"'}, "s.toml: [model] kind: must be \"vibro_impact\", got 'duffing'"),
+        ({"kind": '"duffing"'}, "s.toml: [model] kind: must be one of ['vibro_impact', 'mdof'], got 'duffing'"),
         ({"D": "true"}, "s.toml: [noise] D: must be a number, got a boolean True"),
         ({"n_points": "1.5"}, "s.toml: [method] n_points: must be an integer, got a float 1.5"),
         ({"n_samples": "1"}, "s.toml: [method] n_samples: must be an integer >= 2, got 1"),
@@ -154,7 +154,7 @@ def test_run_scene_file_writes_only_what_it_asks(tmp_path, capsys):
     meta = json.loads((tmp_path / "small.json").read_text())
     assert meta["parameters"]["model"]["gamma"] == "none"
     assert meta["versions"]["jdpim"] == jdpim.__version__ and "jax" in meta["versions"]
-    assert sorted(meta["files"]) == sorted(["small.npz", "small_marginal_x.png", "small.json"])
+    assert sorted(meta["files"]) == sorted(["small.npz", "small_timing.csv", "small_marginal_x.png", "small.json"])
     assert all((tmp_path / f).is_file() for f in meta["files"])
 
 

@@ -64,6 +64,16 @@ def test_bandwidth_rules_on_gaussian(rule):
     assert float(jdpim.bandwidth(y, w, rule)) == pytest.approx(expected, rel=0.03)
 
 
+@pytest.mark.parametrize("rule", jdpim.RULES)
+def test_bandwidth_uses_std_where_over_half_the_mass_sits_at_one_value(rule):
+    """A zero IQR (60 % of the paths at 0) gives the std, not a zero width (which no kernel accepts)."""
+    y = jnp.concatenate([jnp.zeros(60), jnp.linspace(-1.0, 1.0, 40)])
+    w = jnp.full(100, 0.01)
+    std = float(jnp.std(y))
+    expected = {"chen": jdpim.results._density.CHEN_C, "silverman": 0.9, "scott": 1.06}[rule] * std * 100 ** (-0.2)
+    assert float(jdpim.bandwidth(y, w, rule)) == pytest.approx(expected, rel=1e-5)
+
+
 def test_nonfinite_samples_are_left_out_not_hidden():
     y = jnp.array([0.0, 1.0, jnp.nan, 2.0])
     w = jnp.full(4, 0.25)

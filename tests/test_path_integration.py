@@ -229,6 +229,6 @@ def test_reports_draw_a_stationary_density_at_every_saved_time():
 
     res = jdpim.path_integration(elastic("float32"), SMALL, stationary=True)
     grid = np.linspace(0.0, 1.0, 5)
-    arrays = report.densities({"ref": res}, (10.0, 30.0), {"x": grid}, (grid, grid), (30.0,))
+    arrays = report.densities({"ref": res}, (10.0, 30.0), {"x": grid}, {("x", "v"): (grid, grid)}, (30.0,))
     assert arrays["ref_pdf_x"].shape == (2, 5) and arrays["ref_joint"].shape == (1, 5, 5)
     np.testing.assert_array_equal(arrays["ref_pdf_x"][0], np.asarray(res.pdf("x", grid)))

@@ -166,20 +166,20 @@ def run(args) -> dict:
     ref = report.reference(scene, jdpim.PathIntegration(), log, what)
     if ref is not None:
         results["reference"] = ref
-    xg, vg = report.grids(scene, (dp, mc), 301)
-    xj, vj = xg[::2], vg[::2]
-    arrays = report.densities(results, scene.save_at, {"x": xg, "v": vg}, (xj, vj), scene.save_at[-1:])
+    grids = report.grids(scene, (dp, mc), 301)
+    joints = {("x", "v"): (grids["x"][::2], grids["v"][::2])}
+    arrays = report.densities(results, scene.save_at, grids, joints, scene.save_at[-1:])
     # every saved time: DPIM against MCS first, then each against the reference
     pairs = [("dpim", "monte_carlo")] + [(n, "reference") for n in ("dpim", "monte_carlo") if ref is not None]
     dist = {
         f"L1({SHORT[a]}, {SHORT[b]}) {var} t={t:g}": report.l1(arrays, a, b, var, g, i)
         for a, b in pairs
         for i, t in enumerate(scene.save_at)
-        for var, g in (("x", xg), ("v", vg))
+        for var, g in grids.items()
     }
     for k, v in dist.items():
         print(f"  {k}: {v:.4f}")
-    drawn = report.draw(scene, arrays, {"x": xg, "v": vg}, report.labels(results), args.out, joint_grids=(xj, vj))
+    drawn = report.draw(scene, arrays, grids, report.labels(results), args.out, joints=joints)
     summary = {
         "scene": {
             k: (str(v) if isinstance(v, pathlib.Path) else v)

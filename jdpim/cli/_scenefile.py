@@ -19,7 +19,29 @@ r"""Scene files: a computation described in TOML, checked key by key before anyt
 
 Optional tables: ``[initial]`` (``x0``, ``v0``), ``[output]`` (``densities``: which of ``"x"``, ``"v"``,
 ``"joint"`` are stored, ``states``: whether the raw states are stored too, ``figures``, ``n_grid``).
-Every error names the file and the key (``scene.toml: [model] r: must lie in [0, 1], got 1.5``).
+
+``kind = "mdof"`` is ``jdpim.MDOFOscillator``, ``M q'' + C q' + K q = B xi(t)`` with constraints
+``normal . q >= position``:
+
+.. code-block:: toml
+
+    [model]
+    kind = "mdof"
+    mass = [[1.0, 0.0], [0.0, 0.05]]        # M, (n, n) symmetric positive definite
+    damping = [[0.02, 0.0], [0.0, 0.0]]     # C, (n, n), or "none" (the default)
+    stiffness = [[1.0, 0.0], [0.0, 0.0]]    # K, (n, n), or "none" (the default)
+    gains = [[1.0], [0.0]]                  # B, (n, m) for m noise sources
+    [[model.constraints]]                   # any number of them, counted from 0
+    normal = [-1.0, 1.0]
+    position = -0.1
+    r = 0.5
+
+with ``[noise] D`` a number (one source) or an ``(m, m)`` matrix, ``[initial] x0``, ``v0`` arrays of ``n``
+numbers (default: at rest at 0), ``[output] densities`` the coordinates whose marginals are stored (default:
+all of ``model.coordinates``) and ``[output] joint`` pairs of them (``[["x1", "x2"]]``; default: none).
+
+Every error names the file and the key (``scene.toml: [model] r: must lie in [0, 1], got 1.5``,
+``damper.toml: [model] constraints[1].r: must lie in [0, 1], got 1.5``).
 """
 
 from __future__ import annotations
@@ -37,8 +59,10 @@ else:  # pragma: no cover - Python 3.10
     import tomli as tomllib
 
 NONE = "none"  # the TOML spelling of "this term is absent"
+KINDS = ("vibro_impact", "mdof")
 METHODS = ("dpim", "monte_carlo")
-DENSITIES = ("x", "v", "joint")
+DENSITIES = ("x", "v", "joint")  # [output] densities of one degree of freedom
+NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]*")  # a coordinate's name: it names arrays and files
 
 
 class SceneFileError(ValueError):
@@ -64,9 +88,11 @@ class Method:
 
 @dataclasses.dataclass(frozen=True)
 class Outputs:
-    """What a scene-file run stores: densities (``"x"``, ``"v"``, ``"joint"``), raw states, figures."""
+    """What a scene-file run stores: the marginals of the coordinates ``marginals``, the joint densities of the
+    coordinate pairs ``joint``, raw states, figures, and the number of grid nodes per coordinate."""
 
-    densities: tuple[str, ...] = DENSITIES
+    marginals: tuple[str, ...] = ("x", "v")
+    joint: tuple[tuple[str, str], ...] = (("x", "v"),)
     states: bool = False
     figures: bool = True
     n_grid: int = 201
@@ -86,35 +112,53 @@ class SceneFile:
     table: dict
 
 
+_MODEL_KEYS = {
+    "vibro_impact": {"kind", "alpha", "gamma", "r", "barrier", "omega"},
+    "mdof": {"kind", "mass", "damping", "stiffness", "gains", "names", "constraints"},
+}
+_CONSTRAINT_KEYS = {"normal", "position", "r"}
 _SCHEMA = {
-    "model": {"kind", "alpha", "gamma", "r", "barrier", "omega"},
+    "model": set().union(*_MODEL_KEYS.values()),  # checked against the kind's keys once the kind is known
     "noise": {"D"},
     "time": {"t_end", "dt", "save_at"},
     "initial": {"x0", "v0"},
     "method": {"name", "n_points", "n_samples", "seed"},
-    "output": {"densities", "states", "figures", "n_grid"},
+    "output": {"densities", "joint", "states", "figures", "n_grid"},
 }
 _REQUIRED = ("model", "noise", "time", "method")
 
 
 class _Reader:
-    """Typed access to one table of the file; every error names the file, the table and the key."""
+    """Typed access to one table of the file; every error names the file, the table and the key.
 
-    def __init__(self, path: pathlib.Path, name: str, table: Any):
-        self.path, self.name = path, name
+    ``keys``: the allowed keys (default: the table's in ``_SCHEMA``; ``None``: not checked here, see
+    :meth:`only`). ``prefix`` goes before every key in messages (``"constraints[1]."``).
+    """
+
+    def __init__(self, path: pathlib.Path, name: str, table: Any, keys=(), prefix: str = ""):
+        self.path, self.name, self.prefix = path, name, prefix
         if not isinstance(table, dict):
             self.fail(None, f"must be a table, got {_toml_type(table)}")
-        unknown = sorted(set(table) - _SCHEMA[name])
-        if unknown:
-            self.fail(unknown[0], f"unknown key; allowed keys are {sorted(_SCHEMA[name])}")
         self.table = table
+        if keys is not None:
+            self.only(keys or _SCHEMA[name])
+
+    def only(self, keys) -> None:
+        """Fail on the first key not in ``keys``."""
+        unknown = sorted(set(self.table) - set(keys))
+        if unknown:
+            self.fail(unknown[0], f"unknown key; allowed keys are {sorted(keys)}")
 
     def fail(self, key, message: str):
-        where = f"[{self.name}]" if key is None else f"[{self.name}] {key}"
+        where = f"[{self.name}]" if key is None else f"[{self.name}] {self.prefix}{key}"
         raise SceneFileError(f"{self.path.name}: {where}: {message}")
 
-    def number(self, key, default=None, *, low=None, high=None, low_open=False, allow_none=False):
-        value = self.table.get(key, default)
+    def number(self, key, default=None, **limits):
+        """The number at ``key`` (see :meth:`real` for ``limits``)."""
+        return self.real(key, self.table.get(key, default), **limits)
+
+    def real(self, key, value, *, low=None, high=None, low_open=False, allow_none=False):
+        """``value`` (of ``key``) as a finite float in the range given, or ``None`` for ``"none"`` where allowed."""
         if allow_none and (value is None or value == NONE):
             return None
         if value is None:
@@ -134,6 +178,32 @@ class _Reader:
                 f"must lie in {'(' if low_open else '['}{lo}, {hi}{']' if high is not None else ')'}, got {value:g}",
             )
         return value
+
+    def vector(self, key, length: int, default=None) -> list[float]:
+        """An array of ``length`` numbers, one per coordinate."""
+        value = self.table.get(key, default)
+        if value is None:
+            self.fail(key, "is required")
+        if not isinstance(value, list) or len(value) != length:
+            self.fail(key, f"must be an array of {length} numbers, one per coordinate, got {value!r}")
+        return [self.real(f"{key}[{i}]", a) for i, a in enumerate(value)]
+
+    def matrix(self, key, default=None, *, allow_none=False) -> list[list[float]] | None:
+        """A matrix written as an array of equally long rows of numbers, or ``None`` for ``"none"`` where allowed.
+
+        Its shape and properties are the library's to check (``jdpim.MDOFOscillator``, ``jdpim.WhiteNoise``).
+        """
+        value = self.table.get(key, default)
+        if allow_none and (value is None or value == NONE):
+            return None
+        if value is None:
+            self.fail(key, "is required")
+        if not (isinstance(value, list) and value and all(isinstance(row, list) and row for row in value)):
+            hint = f' or "{NONE}"' if allow_none else ""
+            self.fail(key, f"must be a matrix, an array of rows of numbers{hint}, got {_toml_type(value)} {value!r}")
+        if len({len(row) for row in value}) > 1:
+            self.fail(key, f"must be a matrix: its rows have {[len(row) for row in value]} entries")
+        return [[self.real(f"{key}[{i},{j}]", a) for j, a in enumerate(row)] for i, row in enumerate(value)]
 
     def integer(self, key, default=None, *, low: int):
         value = self.table.get(key, default)
@@ -163,12 +233,133 @@ class _Reader:
             self.fail(key, f"lists {value!r} with repeats")
         return tuple(items)
 
+    def pairs(self, key, allowed: tuple[str, ...]) -> tuple[tuple[str, str], ...]:
+        """An array of pairs of distinct names from ``allowed`` (``[["x1", "x2"]]``), without repeats; default none."""
+        value = self.table.get(key, [])
+        if not isinstance(value, list):
+            self.fail(key, f'must be an array of pairs of coordinates, e.g. [["x1", "x2"]], got {value!r}')
+        for i, pair in enumerate(value):
+            if (
+                not (isinstance(pair, list) and len(pair) == 2 and all(v in allowed for v in pair))
+                or pair[0] == pair[1]
+            ):
+                self.fail(f"{key}[{i}]", f"must be a pair of distinct coordinates from {list(allowed)}, got {pair!r}")
+        pairs = tuple((a, b) for a, b in value)
+        if len(set(pairs)) != len(pairs):
+            self.fail(key, f"lists {value!r} with repeats")
+        return pairs
+
 
 def _toml_type(value) -> str:
     for kind, name in ((bool, "a boolean"), (str, "a string"), (int, "an integer"), (float, "a float")):
         if isinstance(value, kind):
             return name
     return {dict: "a table", list: "an array"}.get(type(value), type(value).__name__)
+
+
+def _library_error(path: pathlib.Path, err: Exception, table: str | None = None, prefix: str = "") -> SceneFileError:
+    """A library's ``ValueError`` or ``TypeError`` in one line naming the key its message starts with.
+
+    ``mass must be symmetric ...`` -> ``[model] mass: must be symmetric ...``; ``table`` defaults to the
+    table that has the key; ``prefix`` goes before the key (``"constraints[1]."``).
+    """
+    message = str(err).splitlines()[0] if str(err) else type(err).__name__
+    match = re.match(r"[A-Za-z_][\w.\[\]]*", message)
+    key = match.group(0) if match else ""
+    if table is None:
+        base = re.match(r"\w*", key).group(0)
+        table = next((name for name, keys in _SCHEMA.items() if base in keys), "time")
+    if message[len(key) :].startswith(" must "):
+        message = message[len(key) + 1 :]  # "mass must be ..." -> "must be ..." after the key
+    return SceneFileError(f"{path.name}: [{table}] {prefix}{key}: {message}")
+
+
+def _vibro_impact(m: _Reader):
+    """``jdpim.VibroImpactOscillator`` of a ``kind = "vibro_impact"`` model table, and its parameters."""
+    import jdpim
+
+    args = {
+        "alpha": m.number("alpha", NONE, low=0.0, allow_none=True),
+        "gamma": m.number("gamma", NONE, low=0.0, allow_none=True),
+        "r": m.number("r", low=0.0, high=1.0),
+        "barrier": m.number("barrier", 0.0, allow_none=True),
+        "omega": m.number("omega", 1.0, low=0.0, low_open=True),
+    }
+    try:
+        model = jdpim.VibroImpactOscillator(**args)
+    except (ValueError, TypeError) as err:
+        raise _library_error(m.path, err, "model") from None
+    return model, {"kind": "vibro_impact", **{k: (NONE if v is None else v) for k, v in args.items()}}
+
+
+def _mdof(m: _Reader):
+    """``jdpim.MDOFOscillator`` of a ``kind = "mdof"`` model table, and its parameters with defaults filled in.
+
+    Types and the constraints' ranges are checked here; shapes, symmetry and definiteness by the library,
+    whose messages are given under the key.
+    """
+    import jdpim
+
+    mass = m.matrix("mass")
+    n = len(mass)
+    if len(mass[0]) != n:
+        m.fail("mass", f"must be a square (n, n) matrix, got shape ({n}, {len(mass[0])})")
+    matrices = {
+        "mass": mass,
+        "damping": m.matrix("damping", NONE, allow_none=True),
+        "stiffness": m.matrix("stiffness", NONE, allow_none=True),
+        "gains": m.matrix("gains"),
+    }
+    names = m.table.get("names")
+    if names is not None and not (
+        isinstance(names, list) and all(isinstance(s, str) and NAME.fullmatch(s) for s in names)
+    ):
+        m.fail("names", f"must be an array of names (a letter, then letters, digits or _), got {names!r}")
+    tables = m.table.get("constraints", [])
+    if not isinstance(tables, list) or not all(isinstance(c, dict) for c in tables):
+        m.fail("constraints", f"must be an array of tables [[model.constraints]] (normal, position, r), got {tables!r}")
+    constraints = []
+    for j, table in enumerate(tables):
+        c = _Reader(m.path, "model", table, _CONSTRAINT_KEYS, prefix=f"constraints[{j}].")
+        args = {
+            "normal": c.vector("normal", n),
+            "position": c.number("position", 0.0),
+            "r": c.number("r", low=0.0, high=1.0),
+        }
+        try:
+            constraints.append(jdpim.Barrier(**args))
+        except (ValueError, TypeError) as err:
+            raise _library_error(m.path, err, "model", c.prefix) from None
+    try:
+        model = jdpim.MDOFOscillator(**matrices, constraints=tuple(constraints), names=names)
+    except (ValueError, TypeError) as err:
+        raise _library_error(m.path, err, "model") from None
+    if len(set(model.coordinates)) != len(model.coordinates):  # e.g. names ["x", "v"]: the velocity of x is v
+        m.fail("names", f"give the coordinates {list(model.coordinates)}, with repeats; choose other names")
+    table = {
+        "kind": "mdof",
+        **{k: (NONE if v is None else v) for k, v in matrices.items()},
+        "names": list(model.coordinates[:n]),
+        "constraints": [
+            {"normal": list(c.normal), "position": float(c.position), "r": float(c.r)} for c in constraints
+        ],
+    }
+    return model, table
+
+
+def _intensity(noise: _Reader, n_sources: int):
+    """``[noise] D`` of an MDOF model with ``n_sources`` columns of gains: an ``(m, m)`` matrix, or for one
+    source a number >= 0."""
+    value = noise.table.get("D")
+    if n_sources == 1 and not isinstance(value, list):
+        return noise.number("D", low=0.0)
+    want = f"a ({n_sources}, {n_sources}) matrix, a row and a column per noise source (column of [model] gains)"
+    if value is not None and not isinstance(value, list):
+        noise.fail("D", f"must be {want}, got {_toml_type(value)} {value!r}")
+    D = noise.matrix("D")
+    if (len(D), len(D[0])) != (n_sources, n_sources):
+        noise.fail("D", f"must be {want}, got shape ({len(D)}, {len(D[0])})")
+    return D
 
 
 def load(path) -> SceneFile:
@@ -195,30 +386,28 @@ def load(path) -> SceneFile:
     for name in _REQUIRED:
         if name not in raw:
             raise SceneFileError(f"{path.name}: [{name}]: missing table")
-    tables = {name: _Reader(path, name, raw.get(name, {})) for name in _SCHEMA}
+    tables = {name: _Reader(path, name, raw.get(name, {}), keys=None if name == "model" else ()) for name in _SCHEMA}
 
     m = tables["model"]
     kind = m.table.get("kind", "vibro_impact")
-    if kind != "vibro_impact":
-        m.fail("kind", f'must be "vibro_impact", got {kind!r}')
-    model_args = {
-        "alpha": m.number("alpha", NONE, low=0.0, allow_none=True),
-        "gamma": m.number("gamma", NONE, low=0.0, allow_none=True),
-        "r": m.number("r", low=0.0, high=1.0),
-        "barrier": m.number("barrier", 0.0, allow_none=True),
-        "omega": m.number("omega", 1.0, low=0.0, low_open=True),
-    }
-    D = tables["noise"].number("D", low=0.0)
+    if kind not in KINDS:
+        m.fail("kind", f"must be one of {list(KINDS)}, got {kind!r}")
+    m.only(_MODEL_KEYS[kind])
+    mdof = kind == "mdof"
+    model, model_table = _mdof(m) if mdof else _vibro_impact(m)
+    D = _intensity(tables["noise"], model.n_sources) if mdof else tables["noise"].number("D", low=0.0)
     t = tables["time"]
     t_end = t.number("t_end", low=0.0, low_open=True)
     dt = t.number("dt", low=0.0, low_open=True)
     save_at = t.table.get("save_at", [t_end])
     if not isinstance(save_at, list) or not save_at:
         t.fail("save_at", f"must be a non-empty array of times in s, got {save_at!r}")
-    save_at = [_Reader(path, "time", {"save_at": s}).number("save_at", low=0.0, high=t_end) for s in save_at]
+    save_at = [t.real("save_at", s, low=0.0, high=t_end) for s in save_at]
     init = tables["initial"]
-    x0 = init.number("x0", NONE, allow_none=True)
-    v0 = init.number("v0", 0.0)
+    if mdof:  # arrays of n numbers, at rest at 0 by default
+        x0, v0 = (init.vector(key, model.dimension, [0.0] * model.dimension) for key in ("x0", "v0"))
+    else:
+        x0, v0 = init.number("x0", NONE, allow_none=True), init.number("v0", 0.0)
 
     me = tables["method"]
     names = me.choices("name", None, METHODS) if "name" in me.table else me.fail("name", "is required")
@@ -233,21 +422,30 @@ def load(path) -> SceneFile:
         for name in names
     )
     o = tables["output"]
+    if mdof:
+        coords = model.coordinates
+        densities, joint = o.choices("densities", list(coords), coords), o.pairs("joint", coords)
+        marginals = densities
+    else:
+        if "joint" in o.table:
+            o.fail("joint", 'applies to kind = "mdof"; for one degree of freedom list "joint" in densities')
+        densities = o.choices("densities", list(DENSITIES), DENSITIES)
+        marginals = tuple(d for d in densities if d != "joint")
+        joint = (("x", "v"),) if "joint" in densities else ()
     outputs = Outputs(
-        densities=o.choices("densities", list(DENSITIES), DENSITIES),
+        marginals=marginals,
+        joint=joint,
         states=o.boolean("states", False),
         figures=o.boolean("figures", True),
         n_grid=o.integer("n_grid", 201, low=2),
     )
     try:
-        model = jdpim.VibroImpactOscillator(**model_args)
-        scene = jdpim.Scene(model, noise=jdpim.WhiteNoise(D=D), x0=x0, v0=v0, t_end=t_end, dt=dt, save_at=save_at)
+        noise = jdpim.WhiteNoise(D=D)
+        scene = jdpim.Scene(model, noise=noise, x0=x0, v0=v0, t_end=t_end, dt=dt, save_at=save_at)
     except (ValueError, TypeError) as err:
-        key = re.match(r"[A-Za-z_]\w*", str(err)).group(0)
-        table = next((n for n, keys in _SCHEMA.items() if key in keys), "time")
-        raise SceneFileError(f"{path.name}: [{table}] {key}: {err}") from None
+        raise _library_error(path, err) from None
     table = {
-        "model": {"kind": kind, **{k: (NONE if v is None else v) for k, v in model_args.items()}},
+        "model": model_table,
         "noise": {"D": D},
         "time": {"t_end": t_end, "dt": dt, "save_at": list(scene.save_at)},
         "initial": {"x0": NONE if x0 is None else x0, "v0": v0},
@@ -256,6 +454,12 @@ def load(path) -> SceneFile:
             **{("n_points" if x.name == "dpim" else "n_samples"): x.n_paths for x in methods},
             "seed": seed,
         },
-        "output": dataclasses.asdict(outputs),
+        "output": {
+            "densities": list(densities),
+            **({"joint": [list(p) for p in joint]} if mdof else {}),
+            "states": outputs.states,
+            "figures": outputs.figures,
+            "n_grid": outputs.n_grid,
+        },
     }
     return SceneFile(path, scene, methods, outputs, table)

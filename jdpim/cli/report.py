@@ -2,8 +2,9 @@
 
 Solving a scene with several methods (``jdpim.solve``, timed), the densities of the results on common grids,
 the timing tables (Markdown, CSV), the versions, and the figures (``jdpim.figures``). Density arrays are keyed
-as in a scene file's ``.npz``: ``<name>_pdf_<var>``, ``<name>_stderr_<var>``, ``<name>_joint``, with the
-names ``"dpim"``, ``"monte_carlo"`` and ``"reference"``.
+as in a scene file's ``.npz``: ``<name>_pdf_<var>``, ``<name>_stderr_<var>``, ``<name>_joint`` (of ``x`` and
+``v``) or ``<name>_joint_<a>_<b>``, with the names ``"dpim"``, ``"monte_carlo"`` and ``"reference"``; ``var``
+is any coordinate of the model (``"x"``, ``"v"``; ``"x1"``, ``"v2"``, ... for several degrees of freedom).
 """
 
 from __future__ import annotations
@@ -102,22 +103,42 @@ def reference(scene, method, log, what: str = "path integration (reference)"):
         return None
 
 
-def grids(scene, results, n_grid: int, q: float = 0.999):
-    """Displacement and velocity grids, ``n_grid`` nodes each, covering the central ``q`` of the mass.
+def lower_bounds(model) -> dict:
+    """``{coordinate: lower bound}`` of the coordinates a barrier or a constraint bounds from below."""
+    bounds = model.bounds()
+    if bounds is None:
+        return {}
+    if not isinstance(bounds, dict):  # one degree of freedom: the barrier of x
+        bounds = {model.coordinates[0]: bounds}
+    return {name: float(b) for name, b in bounds.items()}
 
-    Over every saved time and every sampling result (``jdpim.Result``) of ``results``; ``x`` starts at the
-    barrier where ``scene`` has one, ``v`` is symmetric about 0.
+
+def grids(scene, results, n_grid: int, names=None, q: float = 0.999) -> dict:
+    """Grids of the coordinates ``names`` (default: every coordinate of the model), ``n_grid`` nodes each.
+
+    Each covers the central ``q`` of the mass over every saved time and every sampling result
+    (``jdpim.Result``) of ``results``. A coordinate bounded from below (``x`` of a model with a barrier)
+    starts at its bound; velocities (the second half of ``scene.model.coordinates``) are symmetric about 0.
+    Returns ``{name: grid}`` in the order of ``names``.
     """
-    barrier = float(scene.model.barrier) if scene.model.has_barrier else None
-    xs, vs = [], []
-    for res in results:
-        x, v = np.asarray(res.states[..., 0]), np.asarray(res.states[..., 1])
-        w = np.broadcast_to(np.asarray(res.weights)[:, None], x.shape)
-        xs.append(figures.mass_range(x, w, q=q, lower=barrier))
-        vs.append(figures.mass_range(v, w, q=q))
-    x_lo = barrier if barrier is not None else min(a for a, _ in xs)
-    v_half = max(max(abs(a), abs(b)) for a, b in vs)
-    return np.linspace(x_lo, max(b for _, b in xs), n_grid), np.linspace(-v_half, v_half, n_grid)
+    coords = scene.model.coordinates
+    bounds = lower_bounds(scene.model)
+    out = {}
+    for name in coords if names is None else names:
+        i, lower = coords.index(name), bounds.get(name)
+        ranges = []
+        for res in results:
+            y = np.asarray(res.states[..., i])
+            w = np.broadcast_to(np.asarray(res.weights)[:, None], y.shape)
+            ranges.append(figures.mass_range(y, w, q=q, lower=lower))
+        if i >= len(coords) // 2:  # a velocity
+            half = max(max(abs(a), abs(b)) for a, b in ranges)
+            lo, hi = -half, half
+        else:
+            lo = lower if lower is not None else min(a for a, _ in ranges)
+            hi = max(b for _, b in ranges)
+        out[name] = np.linspace(lo, hi, n_grid)
+    return out
 
 
 def _has_error(res) -> bool:
@@ -125,33 +146,57 @@ def _has_error(res) -> bool:
     return res.method == "monte_carlo" or getattr(res, "coarse", None) is not None
 
 
-def densities(results: dict, times, grids: dict, joint_grids=None, joint_times=()) -> dict:
+def _check_spread(res, var, times) -> None:
+    """Fail in words where every finite path of a sampling result has one value of ``var`` at a saved time: a
+    point mass, for which the rule gives no kernel width (a mass not reached yet, a start at rest)."""
+    if not hasattr(res, "samples"):
+        return
+    for t in times:
+        y = np.asarray(res.samples(var, t))
+        y = y[np.isfinite(y)]
+        if y.size and np.all(y == y[0]):
+            raise ValueError(
+                f"{var} has the value {y[0]:g} on every path of {res.method} at t = {t:g} s, a point mass without a "
+                f"density; leave {var} out of the densities or save it later"
+            )
+
+
+def joint_name(pair) -> str:
+    """The name of the joint density of a coordinate pair in keys and file names: ``"joint"`` for ``("x", "v")``
+    (one degree of freedom, as before), else ``"joint_<a>_<b>"``."""
+    return "joint" if tuple(pair) == ("x", "v") else f"joint_{pair[0]}_{pair[1]}"
+
+
+def densities(results: dict, times, grids: dict, joints=None, joint_times=()) -> dict:
     """Densities of named results on common grids.
 
     Args:
         results: name -> ``jdpim.Result`` or ``jdpim.GridResult`` (a stationary one gives its density at
             every time).
         times: saved times of the marginals, s.
-        grids: variable (``"x"``, ``"v"``) -> 1-D grid of its marginal.
-        joint_grids: ``(x_grid, v_grid)`` of the joint densities (``None``: none).
+        grids: coordinate (``"x"``, ``"v"``, ``"x1"``, ...) -> 1-D grid of its marginal.
+        joints: ``{(a, b): (grid_a, grid_b)}``, the coordinate pairs of the joint densities (``None``: none).
         joint_times: saved times of the joint densities, s.
 
     Returns:
         ``<name>_pdf_<var>``, shape ``(len(times), len(grid))``; ``<name>_stderr_<var>`` of the same shape
-        where the result has an error estimate (``pdf_error``); ``<name>_joint``, shape
-        ``(len(joint_times), len(x_grid), len(v_grid))``, where ``joint_grids`` is given.
+        where the result has an error estimate (``pdf_error``); ``<name>_<joint_name(pair)>``, shape
+        ``(len(joint_times), len(grid_a), len(grid_b))``, for each pair of ``joints``.
     """
     arrays = {}
     for name, res in results.items():
         at = [None] * len(times) if getattr(res, "stationary", False) else times  # a stationary density has no t
         joint_at = [None] * len(joint_times) if getattr(res, "stationary", False) else joint_times
         for var, g in grids.items():
+            _check_spread(res, var, at)
             arrays[f"{name}_pdf_{var}"] = np.stack([np.asarray(res.pdf(var, g, t)) for t in at])
             if _has_error(res):
                 arrays[f"{name}_stderr_{var}"] = np.stack([np.asarray(res.pdf_error(var, g, t)) for t in at])
-        if joint_grids is not None:
-            arrays[f"{name}_joint"] = np.stack(
-                [np.asarray(res.joint_pdf(("x", "v"), joint_grids, t)) for t in joint_at]
+        for pair, pair_grids in (joints or {}).items():
+            for var in pair:
+                _check_spread(res, var, joint_at)
+            arrays[f"{name}_{joint_name(pair)}"] = np.stack(
+                [np.asarray(res.joint_pdf(pair, pair_grids, t)) for t in joint_at]
             )
     return arrays
 
@@ -187,9 +232,19 @@ def write_json(path: pathlib.Path, data: dict) -> None:
 
 
 def scene_title(scene) -> str:
-    """The scene's parameters for a figure title (``figures.scene_title``)."""
-    model = scene.model
-    return figures.scene_title(model.alpha, model.gamma, model.r, scene.noise.D)
+    """The scene's parameters for a figure title: ``figures.scene_title`` for one degree of freedom; for
+    several the number of coordinates, the constraints' restitutions and ``D``."""
+    import jdpim
+
+    model, D = scene.model, np.asarray(scene.noise.D)
+    if not isinstance(model, jdpim.MDOFOscillator):
+        return figures.scene_title(model.alpha, model.gamma, model.r, scene.noise.D)
+    parts = [f"{model.dimension} degrees of freedom"]
+    if model.constraints:
+        rs = ", ".join(f"{float(c.r):g}" for c in model.constraints)
+        parts.append(f"{len(model.constraints)} constraints ($r$ = {rs})")
+    parts.append(f"$D = {float(D):g}$" if D.ndim == 0 else f"$D$: {D.shape[0]} x {D.shape[1]} matrix")
+    return ", ".join(parts)
 
 
 def labels(results: dict) -> dict:
@@ -225,33 +280,35 @@ def marginal_figure(grids: dict, times, panel_curves, title: str, *, title_size=
     return fig
 
 
-def joint_figure(x_grid, v_grid, panels, title: str, *, title_size=None):
-    """Joint PDFs side by side on shared contour levels: ``panels = [(title, p[len(x_grid), len(v_grid)])]``."""
+def joint_figure(x_grid, v_grid, panels, title: str, *, vars=("x", "v"), title_size=None):
+    """Joint PDFs side by side on shared contour levels: ``panels = [(title, p[len(x_grid), len(v_grid)])]``;
+    ``vars`` names the coordinates of the two grids."""
     plt = figures.pyplot()
     fig, axes = plt.subplots(
         1, len(panels), figsize=(3.5 * len(panels) + 0.8, 3.3), sharey=True, layout="constrained", squeeze=False
     )
-    figures.joint(fig, axes[0], x_grid, v_grid, panels)
+    figures.joint(fig, axes[0], x_grid, v_grid, panels, vars=vars)
     fig.suptitle(title, **({} if title_size is None else {"fontsize": title_size}))
     return fig
 
 
-def draw(scene, arrays: dict, grids: dict, labels: dict, out: pathlib.Path, *, prefix="", joint_grids=None):
+def draw(scene, arrays: dict, grids: dict, labels: dict, out: pathlib.Path, *, prefix="", joints=None):
     """The figures of a run in ``out``; returns their file names.
 
-    ``<prefix>marginal_<var>.png`` for each variable of ``grids`` (a panel per saved time) and, with
-    ``joint_grids``, ``<prefix>joint.png`` (a panel per result, at the last saved time), from the
-    :func:`densities` ``arrays`` of the results named in ``labels``.
+    ``<prefix>marginal_<var>.png`` for each coordinate of ``grids`` (a panel per saved time) and
+    ``<prefix><joint_name(pair)>.png`` for each pair of ``joints`` (``{(a, b): (grid_a, grid_b)}``; a panel
+    per result, at the last saved time), from the :func:`densities` ``arrays`` of the results named in
+    ``labels``.
     """
     title = scene_title(scene)
     names = []
     for var, g in grids.items():
         fig = marginal_figure({var: g}, scene.save_at, lambda var, i: curves(arrays, labels, var, i), title)
         names += save(fig, out, f"{prefix}marginal_{var}")
-    if joint_grids is not None:
-        t = scene.save_at[-1]
-        panels = [(f"{NAME[n]}, $t = {t:g}$ s", arrays[f"{n}_joint"][-1]) for n in labels]
-        names += save(joint_figure(*joint_grids, panels, title), out, f"{prefix}joint")
+    t = scene.save_at[-1]
+    for pair, (ga, gb) in (joints or {}).items():
+        panels = [(f"{NAME[n]}, $t = {t:g}$ s", arrays[f"{n}_{joint_name(pair)}"][-1]) for n in labels]
+        names += save(joint_figure(ga, gb, panels, title, vars=pair), out, f"{prefix}{joint_name(pair)}")
     return names
 
 

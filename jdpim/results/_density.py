@@ -44,7 +44,8 @@ def effective_size(weights):
 def bandwidth(samples, weights, rule: str = "chen", *, dim: int = 1, c: float | None = None):
     r"""Kernel standard deviation from a rule of thumb on a weighted sample.
 
-    ``spread = min(std, IQR / 1.34)`` (weighted), ``n = `` Kish's effective sample size:
+    ``spread = min(std, IQR / 1.34)`` (weighted; ``std`` where the IQR is 0: over half the probability at one
+    value, e.g. a mass of an impact damper that has not moved yet), ``n = `` Kish's effective sample size:
 
     - ``"chen"`` (Chen & Yang's adaptive rule): ``c * spread * n^(-1/(4 + dim))`` with ``c = CHEN_C``;
     - ``"silverman"``: ``0.9 * spread * n^(-1/5)`` in 1-D, ``spread * n^(-1/6)`` in 2-D;
@@ -66,7 +67,7 @@ def bandwidth(samples, weights, rule: str = "chen", *, dim: int = 1, c: float | 
     mean = jnp.sum(wn * samples)
     std = jnp.sqrt(jnp.sum(wn * (samples - mean) ** 2))
     iqr = weighted_quantile(samples, weights, 0.75) - weighted_quantile(samples, weights, 0.25)
-    spread = jnp.minimum(std, iqr / 1.34)
+    spread = jnp.where(iqr > 0, jnp.minimum(std, iqr / 1.34), std)  # IQR 0: over half the mass at one value
     n = effective_size(weights)
     if rule == "chen":
         return (CHEN_C if c is None else c) * spread * n ** (-1.0 / (4 + dim))
