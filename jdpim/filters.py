@@ -80,9 +80,7 @@ def _influence(model: MDOFOscillator, influence) -> np.ndarray:
     return iota
 
 
-def kanai_tajimi(
-    model: MDOFOscillator, omega_g: float = 15.6, zeta_g: float = 0.6, influence=None
-) -> MDOFOscillator:
+def kanai_tajimi(model: MDOFOscillator, omega_g: float = 15.6, zeta_g: float = 0.6, influence=None) -> MDOFOscillator:
     r"""``model`` shaken by a Kanai-Tajimi ground acceleration instead of its own forcing.
 
     The filter coordinate ``xf`` (velocity ``vf``) obeys ``xf'' + 2 zeta_g omega_g xf' + omega_g^2 xf = -w(t)``;

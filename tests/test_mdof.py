@@ -226,12 +226,7 @@ def test_scene_checks_the_start_and_path_integration_refuses():
 
 def test_a_scene_of_several_degrees_of_freedom_passes_through_jit_and_lower():
     """The scene is a pytree argument: jit and AOT lowering rebuild it with tracers or placeholders as leaves."""
-    damper = jdpim.MDOFOscillator(
-        mass=np.diag([1.0, 0.05]),
-        gains=[[1.0], [0.0]],
-        stiffness=np.diag([1.0, 0.0]),
-        constraints=(jdpim.Barrier((-1.0, 1.0), -0.1, 0.5), jdpim.Barrier((1.0, -1.0), -0.1, 0.5)),
-    )
+    damper = jdpim.impact_damper(damping_ratio=0.0)  # undamped primary, clearance +-0.1, r = 0.5
     scene = jdpim.Scene(damper, noise=jdpim.WhiteNoise(D=0.01), t_end=1.0, dt=0.01)
     direct = jdpim.solve(scene, jdpim.MonteCarlo(n_samples=64, seed=0)).states
     jitted = jax.jit(lambda s: jdpim.solve(s, jdpim.MonteCarlo(n_samples=64, seed=0)).states)
@@ -255,12 +250,7 @@ def test_random_matrix_entry_gives_the_mixture_variance():
 
 
 def test_parameters_of_several_degrees_of_freedom_by_name():
-    damper = jdpim.MDOFOscillator(
-        mass=np.diag([1.0, 0.05]),
-        gains=[[1.0], [0.0]],
-        stiffness=np.diag([1.0, 0.0]),
-        constraints=(jdpim.Barrier((-1.0, 1.0), -0.1, 0.5), jdpim.Barrier((1.0, -1.0), -0.1, 0.5)),
-    )
+    damper = jdpim.impact_damper(damping_ratio=0.0)  # undamped primary, clearance +-0.1, r = 0.5
     scene = jdpim.Scene(damper, noise=jdpim.WhiteNoise(D=0.01), t_end=1.0, dt=0.01)
     names = jdpim.parameter_names(scene)
     assert {"stiffness[0,0]", "gains[1,0]", "constraints[1].r", "constraints[0].position", "D"} <= set(names)

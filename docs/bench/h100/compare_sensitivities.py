@@ -20,9 +20,9 @@ jax.config.update("jax_enable_x64", True)
 
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
+from jdpim._path_integration import default_extents  # noqa: E402
 
 import jdpim  # noqa: E402
-from jdpim._path_integration import default_extents  # noqa: E402
 
 DATA = Path(__file__).parent / "data"
 NAMES = ("alpha", "gamma", "D", "r")
