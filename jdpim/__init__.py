@@ -7,6 +7,7 @@ from . import exact as exact
 from . import figures as figures
 from . import filters as filters
 from . import metrics as metrics
+from . import reliability as reliability
 from . import systems as systems
 from ._cpu import use_cpu_cores as use_cpu_cores
 from ._distributions import Normal as Normal
@@ -48,6 +49,8 @@ from .methods._path_integration import path_integration as path_integration
 from .methods._paths import NonFiniteWarning as NonFiniteWarning
 from .methods._paths import dpim_points as dpim_points
 from .methods._paths import simulate as simulate
+from .reliability import FirstPassage as FirstPassage
+from .reliability import first_passage as first_passage
 from .results._density import RULES as RULES
 from .results._density import bandwidth as bandwidth
 from .results._density import histogram as histogram

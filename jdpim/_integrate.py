@@ -34,9 +34,11 @@ the first-order "flip after the step" rule, kept for comparison.
 
 from __future__ import annotations
 
+import abc
 import dataclasses
 import functools
 import itertools
+from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
@@ -508,6 +510,54 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
     return step
 
 
+class Tracker(abc.ABC):
+    """A per-path quantity carried along every step and stored at the save slots like the states.
+
+    Hashable (it is a static argument of the jitted integration). ``init(model, q, v)`` gives its value at the
+    start (``dw``: zeros of the noise increment's shape), ``update(model, acc, q, v, q_new, v_new, dw)`` its
+    value after a step from ``(q, v)`` to
+    ``(q_new, v_new)`` (each ``(d,)``, one path) with the noise increment ``dw = h/6 (e_0 + 4 e_1/2 + e_1)``
+    (shape ``(m,)``, Simpson's rule of the forcing); both return shape ``(k,)``.
+    """
+
+    @abc.abstractmethod
+    def init(self, model, q, v, dw): ...
+
+    @abc.abstractmethod
+    def update(self, model, acc, q, v, q_new, v_new, dw): ...
+
+
+@dataclasses.dataclass(frozen=True)
+class Sums(Tracker):
+    """Running sums from 0 of ``increment(model, q, v, dw) -> (k,)``, taken at the start of every step."""
+
+    increment: Callable
+
+    def init(self, model, q, v, dw):
+        return jnp.zeros_like(self.increment(model, q, v, dw))
+
+    def update(self, model, acc, q, v, q_new, v_new, dw):
+        return acc + self.increment(model, q, v, dw)
+
+
+@dataclasses.dataclass(frozen=True)
+class RunningMax(Tracker):
+    """The largest value of ``quantity(state) -> scalar`` (``state = (q, v)``, shape ``(2 d,)``) over the start
+    and the end of every step so far; shape ``(1,)``. A non-finite value stays (``nan`` propagates)."""
+
+    quantity: Callable
+
+    def _value(self, q, v):
+        return jnp.reshape(self.quantity(jnp.concatenate([q, v])), (1,)).astype(q.dtype)
+
+    def init(self, model, q, v, dw):
+        return self._value(q, v)
+
+    def update(self, model, acc, q, v, q_new, v_new, dw):
+        new = self._value(q_new, v_new)
+        return jnp.where(jnp.isnan(new) | (new > acc), new, acc)
+
+
 def integrate(
     path_model,
     rule: ImpactRule,
@@ -520,7 +570,7 @@ def integrate(
     n_save: int,
     initial_slot: int,
     substeps: Substeps | None = None,
-    accumulate=None,
+    track: Tracker | None = None,
 ):
     """Integrate a batch of paths over the whole time grid and keep only the saved states.
 
@@ -535,14 +585,11 @@ def integrate(
         n_save: number of saved times. Slot ``n_save`` is a scratch row.
         initial_slot: the save slot of ``t = 0`` (``n_save`` if not saved).
         substeps: sub-stepping of stiff steps, or ``None`` for none.
-        accumulate: ``None``, or ``(model, q, v, dw) -> (k,)`` for one path: the increments of ``k``
-            running sums ``A``, from the state ``(q, v)`` (each ``(d,)``) at the start of each step and its
-            noise increment ``dw = h/6 (e_0 + 4 e_1/2 + e_1)`` (shape ``(m,)``, Simpson's rule of the forcing).
-            ``A(0) = 0``; ``A`` is stored at the save slots like the states.
+        track: ``None``, or a :class:`Tracker` carried along every step and stored at the save slots.
 
     Returns:
-        shape ``(n, n_save, 2 d)``: ``(q, v)`` at the saved times; with ``accumulate`` the pair
-        ``(states, sums)``, ``sums`` of shape ``(n, n_save, k)``.
+        shape ``(n, n_save, 2 d)``: ``(q, v)`` at the saved times; with ``track`` the pair ``(states, tracked)``,
+        ``tracked`` of shape ``(n, n_save, k)``.
     """
     step = jax.checkpoint(make_batch_step(path_model, rule, h, substeps))
     n_half, n, m = excitation.shape
@@ -561,22 +608,22 @@ def integrate(
 
     d = q0.shape[1]
     buf = jnp.zeros((n_save + 1, n, 2 * d), dtype=q0.dtype).at[initial_slot].set(jnp.concatenate([q0, v0], axis=-1))
-    if accumulate is None:
+    if track is None:
         (q, v, buf), _ = jax.lax.scan(body, (q0, v0, buf), (jnp.arange(T), slots))
         return jnp.moveaxis(buf[:n_save], 0, 1)
 
-    def increments(q, v, e, r):
+    def update(acc, q, v, q_new, v_new, e, r):
         dw = h / 6.0 * (e[0] + 4.0 * e[1] + e[2])
-        return accumulate(path_model(r), q, v, dw)
+        return track.update(path_model(r), acc, q, v, q_new, v_new, dw)
 
-    def body_with_sums(carry, inputs):
-        (q, v, buf), sums, sums_buf = carry
-        sums = sums + jax.vmap(increments)(q, v, nodes(inputs[0]), rand)
-        sums_buf = jax.lax.dynamic_update_index_in_dim(sums_buf, sums, inputs[1], axis=0)
-        return (body((q, v, buf), inputs)[0], sums, sums_buf), None
+    def body_tracked(carry, inputs):
+        (q, v, buf), acc, acc_buf = carry
+        (q_new, v_new, buf), _ = body((q, v, buf), inputs)
+        acc = jax.vmap(update)(acc, q, v, q_new, v_new, nodes(inputs[0]), rand)
+        acc_buf = jax.lax.dynamic_update_index_in_dim(acc_buf, acc, inputs[1], axis=0)
+        return ((q_new, v_new, buf), acc, acc_buf), None
 
-    k = jax.eval_shape(increments, q0[0], v0[0], tuple(excitation[i, 0] for i in range(3)), rand[0]).shape[0]
-    sums = jnp.zeros((n, k), q0.dtype)
-    init = ((q0, v0, buf), sums, jnp.zeros((n_save + 1, n, k), q0.dtype))
-    ((_, _, buf), _, sums_buf), _ = jax.lax.scan(body_with_sums, init, (jnp.arange(T), slots))
-    return jnp.moveaxis(buf[:n_save], 0, 1), jnp.moveaxis(sums_buf[:n_save], 0, 1)
+    acc = jax.vmap(lambda q, v, r: track.init(path_model(r), q, v, jnp.zeros((m,), q.dtype)))(q0, v0, rand)
+    acc_buf = jnp.zeros((n_save + 1, *acc.shape), q0.dtype).at[initial_slot].set(acc)
+    ((_, _, buf), _, acc_buf), _ = jax.lax.scan(body_tracked, ((q0, v0, buf), acc, acc_buf), (jnp.arange(T), slots))
+    return jnp.moveaxis(buf[:n_save], 0, 1), jnp.moveaxis(acc_buf[:n_save], 0, 1)

@@ -11,7 +11,7 @@ import pytest
 
 import jdpim
 from jdpim import exact
-from jdpim._integrate import ImpactRule, integrate
+from jdpim._integrate import ImpactRule, Sums, integrate
 from jdpim.sensitivities._estimators import (
     CentralDifference,
     LikelihoodRatio,
@@ -144,7 +144,7 @@ def test_accumulator_sums_the_noise_increments():
     exc = jnp.asarray(np.random.default_rng(0).normal(size=(2 * T_ + 1, n, 1)), jnp.float32)
     slots = jnp.asarray([2] * 4 + [0] + [2] * 4 + [1], jnp.int32)  # save after steps 5 and 10
     args = (lambda _: model, ImpactRule(), h, jnp.zeros((n, 1)), jnp.zeros((n, 1)), exc, jnp.zeros((n, 0)), slots, 2, 2)
-    states, sums = integrate(*args, accumulate=lambda m, q, v, dw: jnp.stack([dw[0], jnp.ones_like(q[0])]))
+    states, sums = integrate(*args, track=Sums(lambda m, q, v, dw: jnp.stack([dw[0], jnp.ones_like(q[0])])))
     np.testing.assert_array_equal(np.asarray(states), np.asarray(integrate(*args)))
     e = np.asarray(exc)[:, :, 0]
     incr = h / 6 * (e[0:-1:2] + 4 * e[1::2] + e[2::2])  # Simpson's rule per step

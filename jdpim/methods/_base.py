@@ -15,7 +15,8 @@ class AbstractMethod(abc.ABC):
     """A way to compute response densities of a :class:`jdpim.Scene`: DPIM, Monte Carlo or path integration.
 
     Subclasses are frozen dataclasses of numerical settings. ``run(scene)`` computes the result;
-    ``sensitivity(scene, query)`` the derivatives of its densities (called by ``jdpim.sensitivity``).
+    ``sensitivity(scene, query)`` the derivatives of its densities (called by ``jdpim.sensitivity``);
+    ``first_passage(scene, query)`` first-passage probabilities (called by ``jdpim.first_passage``).
     """
 
     name: str  # the name results carry in ``Result.method``
@@ -27,6 +28,12 @@ class AbstractMethod(abc.ABC):
     @abc.abstractmethod
     def sensitivity(self, scene: Scene, query):
         """``(value, stderr, estimators)`` of ``jdpim.sensitivity`` (``query``: its checked arguments)."""
+
+    def first_passage(self, scene: Scene, query):
+        """The ``jdpim.FirstPassage`` of ``jdpim.first_passage`` (``query``: its checked arguments)."""
+        raise ValueError(
+            f"{type(self).__name__} does not compute first-passage probabilities; use jdpim.MonteCarlo or jdpim.DPIM"
+        )
 
 
 def solve(scene: Scene, method: AbstractMethod):

@@ -21,7 +21,7 @@ import numpy as np
 from .._cpu import host_memory
 from .._distributions import elementary_ppf
 from .._excitation import gaussian_coefficients, random_function_coefficients, synthesize
-from .._integrate import integrate
+from .._integrate import RunningMax, integrate
 from .._points import PointSet, select_points
 from .._pytree import check_int, concrete
 from .._scene import Scene, with_model_parameters
@@ -103,8 +103,8 @@ def _path_inputs(scene: Scene, kind: str, row):
     return coeffs, rand
 
 
-def _simulate_chunk(scene: Scene, kind: str, rows, accumulate=None):
-    """States ``(n, S, 2 d)`` of one chunk of paths (and the running sums of ``accumulate``, see ``integrate``)."""
+def _simulate_chunk(scene: Scene, kind: str, rows, track=None):
+    """States ``(n, S, 2 d)`` of one chunk of paths (and the values of ``track`` at the saved times: ``integrate``)."""
     dtype = scene.float_dtype
     coeffs, rand = jax.vmap(functools.partial(_path_inputs, scene, kind))(rows)
     excitation = synthesize(coeffs, scene.spectral_grid()).astype(dtype)
@@ -139,7 +139,7 @@ def _simulate_chunk(scene: Scene, kind: str, rows, accumulate=None):
         n_save,
         slot_of.get(0, n_save),
         scene.substeps,
-        accumulate,
+        track,
     )
 
 
@@ -148,30 +148,30 @@ def pad_rows(rows, pad: int):
     return jnp.concatenate([rows, jnp.repeat(rows[:1], pad, axis=0)]) if pad else rows
 
 
-def _simulate(scene: Scene, rows, *, kind: str, chunk_size: int, accumulate=None):
+def _simulate(scene: Scene, rows, *, kind: str, chunk_size: int, track=None):
     if kind not in ("dpim", "monte_carlo"):
         raise ValueError(f"kind must be 'dpim' or 'monte_carlo', got {kind!r}")
     n = rows.shape[0]
     pad = (-n) % chunk_size
     padded = pad_rows(rows, pad)
     chunks = padded.reshape(-1, chunk_size, *rows.shape[1:])
-    out = jax.lax.map(functools.partial(_simulate_chunk, scene, kind, accumulate=accumulate), chunks)
+    out = jax.lax.map(functools.partial(_simulate_chunk, scene, kind, track=track), chunks)
     return jax.tree_util.tree_map(lambda a: a.reshape(-1, *a.shape[2:])[:n], out)
 
 
-@functools.partial(jax.jit, static_argnames=("kind", "chunk_size", "accumulate"))
-def simulate(scene: Scene, rows, *, kind: str, chunk_size: int, accumulate=None):
+@functools.partial(jax.jit, static_argnames=("kind", "chunk_size", "track"))
+def simulate(scene: Scene, rows, *, kind: str, chunk_size: int, track=None):
     """Saved states ``(N, S, 2)`` for input ``rows`` (``(N, d)`` DPIM points or ``(N, 2)`` MC key data).
 
-    With ``accumulate`` (a hashable per-step function, see ``integrate``) the pair ``(states, sums)``.
+    With ``track`` (a :class:`jdpim._integrate.Tracker`) the pair ``(states, tracked)``.
 
     Jitted; differentiable with respect to every traced leaf of ``scene``. One device, one call; see
     :func:`run_paths` for sharding over devices and streaming in blocks.
     """
-    return _simulate(scene, rows, kind=kind, chunk_size=chunk_size, accumulate=accumulate)
+    return _simulate(scene, rows, kind=kind, chunk_size=chunk_size, track=track)
 
 
-_jitted_simulate = jax.jit(_simulate, static_argnames=("kind", "chunk_size", "accumulate"))
+_jitted_simulate = jax.jit(_simulate, static_argnames=("kind", "chunk_size", "track"))
 
 
 def _is_traced(tree) -> bool:
@@ -207,11 +207,11 @@ def home_device(devices):
 
 
 @functools.lru_cache(maxsize=32)
-def _sharded_simulate(kind: str, chunk_size: int, devices: tuple, accumulate=None):
+def _sharded_simulate(kind: str, chunk_size: int, devices: tuple, track=None):
     """``simulate`` with the path axis split over ``devices`` (one shard of whole chunks per device)."""
     mesh = jax.sharding.Mesh(np.asarray(devices), ("paths",))
     spec = jax.sharding.PartitionSpec("paths")
-    local = functools.partial(_simulate, kind=kind, chunk_size=chunk_size, accumulate=accumulate)
+    local = functools.partial(_simulate, kind=kind, chunk_size=chunk_size, track=track)
     body = jax.shard_map(
         local, mesh=mesh, in_specs=(jax.sharding.PartitionSpec(), spec), out_specs=spec, check_vma=False
     )
@@ -248,7 +248,7 @@ def run_paths(
     devices=None,
     progress=None,
     label="",
-    accumulate=None,
+    track=None,
 ):
     """Saved states ``(N, S, 2)`` of ``rows``, sharded over ``devices`` and streamed in blocks of paths.
 
@@ -265,14 +265,15 @@ def run_paths(
             pure function of its row, so the states do not depend on the devices or the blocks.
         progress: report progress on stderr (``None``: only when there is more than one block).
         label: the progress line's prefix.
-        accumulate: per-step running sums (see ``integrate``); then the pair ``(states, sums)`` is returned.
+        track: a quantity carried along every step (a :class:`jdpim._integrate.Tracker`); then the pair
+            ``(states, tracked)`` is returned.
 
     Under a JAX transformation (traced scene or rows) this is :func:`simulate`, unsharded and unstreamed;
     differentiating paths that start at rest on the barrier then warns (``SensitivityWarning``: pathwise
     derivatives through that grazing impact are biased).
     """
     if _is_traced((scene, rows)):
-        return simulate(guard(scene), rows, kind=kind, chunk_size=chunk_size, accumulate=accumulate)
+        return simulate(guard(scene), rows, kind=kind, chunk_size=chunk_size, track=track)
     devices = _devices(devices)
     n = rows.shape[0]
     chunk_size = balanced_chunk(n, chunk_size, len(devices))
@@ -282,10 +283,10 @@ def run_paths(
     block = -(-per_block // unit) * unit  # whole chunks on every device
     n_blocks = -(-n // block)
     if len(devices) == 1:
-        run = functools.partial(simulate, kind=kind, chunk_size=chunk_size, accumulate=accumulate)
+        run = functools.partial(simulate, kind=kind, chunk_size=chunk_size, track=track)
         sharding = jax.sharding.SingleDeviceSharding(devices[0])
     else:
-        fn, sharding = _sharded_simulate(kind, chunk_size, devices, accumulate)
+        fn, sharding = _sharded_simulate(kind, chunk_size, devices, track)
         run = fn
     bar = _Progress(n, label or kind, n_blocks > 1 if progress is None else bool(progress))
     pad = n_blocks * block - n
@@ -387,6 +388,17 @@ class SamplingMethod(AbstractMethod):
         from ..sensitivities._sensitivity import sampled_sensitivity  # the estimators build on this core
 
         return sampled_sensitivity(scene, self, query)
+
+    def first_passage(self, scene: Scene, query):
+        from ..reliability._first_passage import FirstPassage  # failure probabilities build on this core
+
+        rows, weights, chunk = self.inputs(scene)
+        track = RunningMax(query.quantity)
+        _, maxima = run_paths(
+            scene, rows, kind=self.name, chunk_size=chunk, devices=self.devices, progress=self.progress, track=track
+        )
+        sampled = self.name == "monte_carlo"  # independent samples: a sampling standard error
+        return FirstPassage.from_maxima(scene.save_at, query.levels, maxima[..., 0], weights, self.name, stderr=sampled)
 
 
 def check_run_settings(method) -> None:

@@ -210,7 +210,7 @@ def drift_derivative(model, name: str, x, v):
 
 @dataclasses.dataclass(frozen=True)
 class Score:
-    """Per-step running sums of the score (hashable, for ``integrate``'s ``accumulate``).
+    """Per-step increments of the score sums (hashable, for ``jdpim._integrate.Sums``).
 
     For each name: ``sum (d_theta b / h) dW`` and ``sum h d_v(d_theta b / h) dt``; then ``sum dW^2``.
     """

@@ -29,6 +29,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
+from .._integrate import Sums
 from .._models import AbstractOscillator
 from .._pytree import check_real
 from .._scene import Scene, get_parameter, parameter_names, with_parameters
@@ -483,8 +484,8 @@ def _context(scene, names, estimators, query: Query, method, rows, weights, chun
     starts = {n: max(0, k_t - int(round(min(window_of(e, scene.model), query.t) / dt))) for n, e in settings.items()}
     times = sorted({k_t} | {k for k in starts.values() if k > 0})
     run_scene = scene.replace(save_at=tuple(k * dt for k in times))
-    score = Score(tuple(settings), dt) if settings else None
-    out = run_paths(run_scene, rows, kind=method, chunk_size=chunk, accumulate=score)
+    score = Sums(Score(tuple(settings), dt)) if settings else None
+    out = run_paths(run_scene, rows, kind=method, chunk_size=chunk, track=score)
     states, sums = out if score is not None else (out, None)
     it = times.index(k_t)
     w, (x, v) = _finite_weights(weights, states[:, it, 0], states[:, it, 1])

@@ -1,0 +1,161 @@
+r"""First passage: ``P(max_{0 <= s <= t} q(s) > level)`` for every saved time ``t`` and every level.
+
+``q`` is a coordinate of the state or a function of it. Sampling methods carry the running maximum of ``q``
+along every step of every path (the start and the end of each step, not only the saved times); path
+integration absorbs the density where ``q > level``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._pytree import concrete, pytree_dataclass, static_field
+from .._scene import Scene, saved_index, static_times
+from ..methods._base import AbstractMethod
+
+
+@dataclasses.dataclass(frozen=True)
+class Coordinate:
+    """The state's entry ``index`` (named ``name``) as a function of the state (hashable)."""
+
+    name: str
+    index: int
+
+    def __call__(self, state):
+        return state[self.index]
+
+
+@dataclasses.dataclass(frozen=True)
+class FirstPassageQuery:
+    """The checked arguments of :func:`first_passage` that a method's ``first_passage`` answers."""
+
+    quantity: Callable  # state (n_state,) -> scalar; hashable
+    levels: np.ndarray  # (L,)
+
+
+@pytree_dataclass
+class FirstPassage:
+    r"""First-passage probabilities ``P(max_{s <= t} q(s) > level)``.
+
+    Attributes:
+        times: saved times, s: a tuple of ``S`` floats (pytree structure).
+        levels: the levels, shape ``(L,)``.
+        probability: shape ``(S, L)``: the probability that ``q`` has exceeded each level by each saved time,
+            counted over the paths (or grid mass) that stayed finite.
+        stderr: shape ``(S, L)``, the sampling standard error of ``probability`` (Monte Carlo:
+            ``sqrt(sum_i w_i^2 (1_i - p)^2)``, i.e. ``sqrt(p (1 - p) / N)`` for ``N`` equal weights), or
+            ``None`` where the method has none (DPIM points are not independent samples).
+        lost_mass: shape ``(S,)``: the probability carried by paths whose quantity became non-finite by
+            each saved time; they are left out of ``probability``, so the true value lies in
+            ``[probability, probability + lost_mass]``.
+        method: the method's name.
+
+    A pytree (leaves: ``levels``, ``probability``, ``stderr``, ``lost_mass``): it passes through ``jax.jit``.
+    """
+
+    times: tuple = static_field()
+    levels: Any = None
+    probability: Any = None
+    stderr: Any = None
+    lost_mass: Any = None
+    method: str = static_field(default="monte_carlo")
+
+    def __post_init__(self):
+        object.__setattr__(self, "times", static_times(self.times))
+
+    def at(self, t: float | None = None):
+        """``(probability, stderr)`` at the saved time ``t`` (``None``: the last), each ``(L,)``;
+        ``stderr`` is ``None`` where the method has none."""
+        i = len(self.times) - 1 if t is None else saved_index(self.times, t)
+        return self.probability[i], None if self.stderr is None else self.stderr[i]
+
+    @classmethod
+    def from_maxima(cls, times, levels, maxima, weights, method: str, *, stderr: bool) -> FirstPassage:
+        """From the running maxima ``(N, S)`` of ``N`` paths with probabilities ``weights`` ``(N,)``."""
+        ok = jnp.isfinite(maxima)
+        w = jnp.where(ok, weights[:, None], 0.0)  # (N, S)
+        hit = (jnp.where(ok, maxima, -jnp.inf)[..., None] > jnp.asarray(levels, maxima.dtype)).astype(maxima.dtype)
+        p = jnp.einsum("ns,nsl->sl", w, hit)
+        se = None
+        if stderr:
+            se = jnp.sqrt(jnp.einsum("ns,nsl->sl", w * w, (hit - p[None]) ** 2))
+        lost = jnp.sum(jnp.where(ok, 0.0, weights[:, None]), axis=0)
+        return cls(times, jnp.asarray(levels, maxima.dtype), p, se, lost, method)
+
+
+def _quantity(scene: Scene, var) -> Callable:
+    names = scene.model.coordinates
+    if callable(var):
+        try:
+            shape = jax.eval_shape(var, jax.ShapeDtypeStruct((len(names),), scene.float_dtype)).shape
+        except Exception as e:  # noqa: BLE001  (any failure of the user's function on a state is reported as one)
+            raise ValueError(
+                f"var must be a function of the state (shape ({len(names)},)); calling it failed: {e}"
+            ) from None
+        if shape not in ((), (1,)):
+            raise ValueError(f"var must return a scalar for a state of shape ({len(names)},), got shape {shape}")
+        return var
+    if not isinstance(var, str) or var not in names:
+        raise ValueError(f"var must be one of the coordinates {names} or a function of the state, got {var!r}")
+    return Coordinate(var, names.index(var))
+
+
+def _levels(scene: Scene, var, level) -> np.ndarray:
+    try:
+        levels = np.atleast_1d(np.asarray(level, dtype=float))
+    except (TypeError, ValueError):
+        raise TypeError(f"level must be a number or a 1-D sequence of numbers, got {level!r}") from None
+    if levels.ndim != 1 or levels.size == 0:
+        raise ValueError(f"level must be a number or a non-empty 1-D sequence of numbers, got shape {levels.shape}")
+    if not np.all(np.isfinite(levels)):
+        raise ValueError(f"level must be finite, got {levels.tolist()}")
+    bounds = scene.model.bounds()
+    bound = bounds.get(var) if isinstance(bounds, dict) and isinstance(var, str) else (bounds if var == "x" else None)
+    bound = None if bound is None else concrete(bound)
+    if bound is not None and np.any(levels <= float(bound)):
+        low = levels[levels <= float(bound)].tolist()
+        raise ValueError(
+            f"level {low} is at or below the lower bound of {var!r} ({float(bound):g}, a barrier): {var} exceeds it "
+            "on every path from the start; choose levels above it"
+        )
+    return levels
+
+
+def first_passage(scene: Scene, var, level, method: AbstractMethod) -> FirstPassage:
+    r"""The probability that ``var`` has exceeded ``level`` at some time in ``[0, t]``, for every saved ``t``.
+
+    ``P_f(t) = P(max_{0 <= s <= t} q(s) > level)``, the first-passage (failure) probability of the safe domain
+    ``q <= level``. For a lower level, pass ``-q`` (e.g. ``lambda s: -s[0]``); for a two-sided domain
+    ``|q| <= level``, ``lambda s: abs(s[0])``.
+
+    Args:
+        scene: the physics (:class:`jdpim.Scene`); the probabilities are given at its saved times.
+        var: a coordinate name (``"x"``, ``"v"``, ``"x1"``, ...) or a function of the state
+            ``f(state) -> scalar`` (``state``: shape ``(n_state,)``, as for densities).
+        level: one level or a 1-D sequence of levels (finite; above the lower bound of a coordinate that a
+            barrier bounds).
+        method: ``jdpim.MonteCarlo(...)`` (with standard errors) or ``jdpim.DPIM(...)``: the running maximum
+            of ``var`` over the start and the end of every time step of every path.
+
+    Returns:
+        :class:`FirstPassage`: ``probability`` and ``stderr`` of shape ``(S, L)``.
+
+    Example:
+        >>> import jdpim
+        >>> scene = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=5.0, dt=0.01, save_at=(1.0, 5.0))
+        >>> fp = jdpim.first_passage(scene, "x", [0.1, 0.3], jdpim.MonteCarlo(n_samples=2000, seed=0))
+        >>> fp.probability.shape, bool(fp.probability[1, 0] >= fp.probability[0, 0])
+        ((2, 2), True)
+    """
+    if not isinstance(scene, Scene):
+        raise TypeError(f"scene must be a jdpim.Scene, got {type(scene).__name__}")
+    if not isinstance(method, AbstractMethod):
+        raise TypeError(f"method must be a jdpim method object, e.g. jdpim.MonteCarlo(), got {method!r}")
+    query = FirstPassageQuery(_quantity(scene, var), _levels(scene, var, level))
+    return method.first_passage(scene, query)
