@@ -543,19 +543,43 @@ class Sums(Tracker):
 @dataclasses.dataclass(frozen=True)
 class RunningMax(Tracker):
     """The largest value of ``quantity(state) -> scalar`` (``state = (q, v)``, shape ``(2 d,)``) over the start
-    and the end of every step so far; shape ``(1,)``. A non-finite value stays (``nan`` propagates)."""
+    and the end of every step so far, and whether the state has been non-finite: shape ``(2,)``.
+
+    A ``nan`` value of the quantity is left out of the maximum (a path that exceeded a level before its state
+    turned non-finite keeps its maximum); the second entry is 1 from the first non-finite state on.
+    """
 
     quantity: Callable
 
     def _value(self, q, v):
-        return jnp.reshape(self.quantity(jnp.concatenate([q, v])), (1,)).astype(q.dtype)
+        state = jnp.concatenate([q, v])
+        value = jnp.reshape(self.quantity(state), ()).astype(q.dtype)
+        return value, (~jnp.all(jnp.isfinite(state))).astype(q.dtype)
 
     def init(self, model, q, v, dw):
-        return self._value(q, v)
+        value, bad = self._value(q, v)
+        return jnp.stack([jnp.where(jnp.isnan(value), -jnp.inf, value), bad])
 
     def update(self, model, acc, q, v, q_new, v_new, dw):
-        new = self._value(q_new, v_new)
-        return jnp.where(jnp.isnan(new) | (new > acc), new, acc)
+        value, bad = self._value(q_new, v_new)
+        return jnp.stack([jnp.where(value > acc[0], value, acc[0]), jnp.maximum(acc[1], bad)])
+
+
+@dataclasses.dataclass(frozen=True)
+class Stacked(Tracker):
+    """Several trackers carried together: their values concatenated, in order."""
+
+    trackers: tuple
+
+    def init(self, model, q, v, dw):
+        return jnp.concatenate([t.init(model, q, v, dw) for t in self.trackers])
+
+    def update(self, model, acc, q, v, q_new, v_new, dw):
+        sizes = [jax.eval_shape(t.init, model, q, v, dw).shape[0] for t in self.trackers]
+        parts = jnp.split(acc, list(itertools.accumulate(sizes))[:-1])
+        return jnp.concatenate(
+            [t.update(model, a, q, v, q_new, v_new, dw) for t, a in zip(self.trackers, parts, strict=True)]
+        )
 
 
 def integrate(

@@ -318,6 +318,13 @@ def parameter_names(scene: Scene) -> tuple[str, ...]:
     return model_parameter_names(scene.model) + NOISE_PARAMETERS
 
 
+def parameter_value(scene: Scene, name: str):
+    """The value of the parameter ``name`` of ``scene`` (one of :func:`parameter_names`; ``"D"`` is the noise's)."""
+    if name not in parameter_names(scene):
+        raise ValueError(f"unknown parameter {name!r}; choose from {list(parameter_names(scene))}")
+    return scene.noise.D if name in NOISE_PARAMETERS else get_parameter(scene.model, name)
+
+
 def with_parameters(scene: Scene, values: dict) -> Scene:
     """``scene`` with named parameters replaced, e.g. ``{"alpha": 0.05, "D": 0.08}`` (values may be traced)."""
     allowed = parameter_names(scene)

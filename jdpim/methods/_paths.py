@@ -21,7 +21,7 @@ import numpy as np
 from .._cpu import host_memory
 from .._distributions import elementary_ppf
 from .._excitation import gaussian_coefficients, random_function_coefficients, synthesize
-from .._integrate import RunningMax, integrate
+from .._integrate import integrate
 from .._points import PointSet, select_points
 from .._pytree import check_int, concrete
 from .._scene import Scene, with_model_parameters
@@ -390,15 +390,9 @@ class SamplingMethod(AbstractMethod):
         return sampled_sensitivity(scene, self, query)
 
     def first_passage(self, scene: Scene, query):
-        from ..reliability._first_passage import FirstPassage  # failure probabilities build on this core
+        from ..reliability._sampled import sampled_first_passage  # failure probabilities build on this core
 
-        rows, weights, chunk = self.inputs(scene)
-        track = RunningMax(query.quantity)
-        _, maxima = run_paths(
-            scene, rows, kind=self.name, chunk_size=chunk, devices=self.devices, progress=self.progress, track=track
-        )
-        sampled = self.name == "monte_carlo"  # independent samples: a sampling standard error
-        return FirstPassage.from_maxima(scene.save_at, query.levels, maxima[..., 0], weights, self.name, stderr=sampled)
+        return sampled_first_passage(self, scene, query)
 
 
 def check_run_settings(method) -> None:

@@ -8,6 +8,7 @@ integration absorbs the density where ``q > level``.
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from collections.abc import Callable
 from typing import Any
 
@@ -16,8 +17,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._pytree import concrete, pytree_dataclass, static_field
-from .._scene import Scene, saved_index, static_times
+from .._scene import Scene, parameter_value, saved_index, static_times
 from ..methods._base import AbstractMethod
+from ..methods._paths import NonFiniteWarning
 
 
 @dataclasses.dataclass(frozen=True)
@@ -37,6 +39,9 @@ class FirstPassageQuery:
 
     quantity: Callable  # state (n_state,) -> scalar; hashable
     levels: np.ndarray  # (L,)
+    wrt: tuple = ()  # parameter names to differentiate with respect to
+    values: dict = dataclasses.field(default_factory=dict)  # their nominal values (floats)
+    estimators: dict = dataclasses.field(default_factory=dict)  # name -> estimator
 
 
 @pytree_dataclass
@@ -51,12 +56,16 @@ class FirstPassage:
         stderr: shape ``(S, L)``, the sampling standard error of ``probability`` (Monte Carlo:
             ``sqrt(sum_i w_i^2 (1_i - p)^2)``, i.e. ``sqrt(p (1 - p) / N)`` for ``N`` equal weights), or
             ``None`` where the method has none (DPIM points are not independent samples).
-        lost_mass: shape ``(S,)``: the probability carried by paths whose quantity became non-finite by
-            each saved time; they are left out of ``probability``, so the true value lies in
-            ``[probability, probability + lost_mass]``.
+        lost_mass: shape ``(S, L)``: the probability carried by paths whose state turned non-finite by
+            each saved time before they exceeded the level; they are left out of ``probability``, so the true
+            value lies in ``[probability, probability + lost_mass]`` (a path that exceeded the level first counts
+            as passed).
         method: the method's name.
+        derivative: ``{name: (S, L) array}``, ``dP/dtheta`` for each parameter of ``wrt`` (``None`` without).
+        derivative_stderr: ``{name: (S, L) array}``, their sampling standard errors (``None`` for DPIM).
 
-    A pytree (leaves: ``levels``, ``probability``, ``stderr``, ``lost_mass``): it passes through ``jax.jit``.
+    A pytree (leaves: ``levels``, ``probability``, ``stderr``, ``lost_mass`` and the derivatives): it passes
+    through ``jax.jit``.
     """
 
     times: tuple = static_field()
@@ -65,6 +74,8 @@ class FirstPassage:
     stderr: Any = None
     lost_mass: Any = None
     method: str = static_field(default="monte_carlo")
+    derivative: Any = None
+    derivative_stderr: Any = None
 
     def __post_init__(self):
         object.__setattr__(self, "times", static_times(self.times))
@@ -75,17 +86,23 @@ class FirstPassage:
         i = len(self.times) - 1 if t is None else saved_index(self.times, t)
         return self.probability[i], None if self.stderr is None else self.stderr[i]
 
+    @staticmethod
+    def passed(tracked, levels):
+        """``(N, S, L)``: 1 where a path's running maximum (:class:`jdpim._integrate.RunningMax` values
+        ``(N, S, 2)``) exceeds a level, else 0."""
+        maxima = tracked[..., 0]
+        return (maxima[..., None] > jnp.asarray(levels, maxima.dtype)[None, None]).astype(maxima.dtype)
+
     @classmethod
-    def from_maxima(cls, times, levels, maxima, weights, method: str, *, stderr: bool) -> FirstPassage:
-        """From the running maxima ``(N, S)`` of ``N`` paths with probabilities ``weights`` ``(N,)``."""
-        ok = jnp.isfinite(maxima)
-        w = jnp.where(ok, weights[:, None], 0.0)  # (N, S)
-        hit = (jnp.where(ok, maxima, -jnp.inf)[..., None] > jnp.asarray(levels, maxima.dtype)).astype(maxima.dtype)
-        p = jnp.einsum("ns,nsl->sl", w, hit)
-        se = None
-        if stderr:
-            se = jnp.sqrt(jnp.einsum("ns,nsl->sl", w * w, (hit - p[None]) ** 2))
-        lost = jnp.sum(jnp.where(ok, 0.0, weights[:, None]), axis=0)
+    def from_tracked(cls, times, levels, tracked, weights, method: str, *, stderr: bool) -> FirstPassage:
+        """From :class:`jdpim._integrate.RunningMax` values ``(N, S, 2)`` of ``N`` paths with probabilities
+        ``weights`` ``(N,)``: a path has passed a level once its running maximum exceeds it (also if its state
+        turned non-finite afterwards); a non-finite path that has not is lost."""
+        maxima, bad = tracked[..., 0], tracked[..., 1] > 0
+        hit = cls.passed(tracked, levels)
+        p = jnp.einsum("n,nsl->sl", weights, hit)
+        se = jnp.sqrt(jnp.einsum("n,nsl->sl", weights * weights, (hit - p[None]) ** 2)) if stderr else None
+        lost = jnp.einsum("n,nsl->sl", weights, (1.0 - hit) * bad[..., None])
         return cls(times, jnp.asarray(levels, maxima.dtype), p, se, lost, method)
 
 
@@ -127,7 +144,40 @@ def _levels(scene: Scene, var, level) -> np.ndarray:
     return levels
 
 
-def first_passage(scene: Scene, var, level, method: AbstractMethod) -> FirstPassage:
+def _derivatives(scene: Scene, wrt, estimator) -> tuple:
+    """``(wrt, values, estimators)``: the checked names, their nominal values and each one's estimator."""
+    from ..sensitivities._estimators import AbstractEstimator, CentralDifference, LikelihoodRatio
+
+    wrt = (wrt,) if isinstance(wrt, str) else wrt
+    if not isinstance(wrt, (tuple, list)) or not all(isinstance(n, str) for n in wrt):
+        raise TypeError(f"wrt must be a parameter name or a sequence of them, got {wrt!r}")
+    if estimator is not None and not isinstance(estimator, AbstractEstimator):
+        raise TypeError(f"estimator must be None or an estimator such as jdpim.CentralDifference(), got {estimator!r}")
+    values, estimators = {}, {}
+    for name in dict.fromkeys(wrt):
+        value = concrete(parameter_value(scene, name))
+        if any(n == name for n, _ in scene.random):
+            raise ValueError(f"parameter {name!r} is random in this scene: no derivative with respect to it")
+        if value is None or np.ndim(value) != 0:
+            raise ValueError(f"parameter {name!r} must be a number to differentiate with respect to")
+        values[name] = float(value)
+        est = estimator
+        if est is None:  # the likelihood ratio where it applies (no step, no 1/step variance), else differences
+            est = CentralDifference()
+            if scene.model.dimension == 1:
+                try:
+                    LikelihoodRatio().check(scene, name)
+                    est = LikelihoodRatio()
+                except ValueError:
+                    pass
+        if isinstance(est, LikelihoodRatio) and scene.model.dimension != 1:
+            raise ValueError("LikelihoodRatio applies to one degree of freedom; use jdpim.CentralDifference()")
+        est.check(scene, name)
+        estimators[name] = est
+    return tuple(values), values, estimators
+
+
+def first_passage(scene: Scene, var, level, method: AbstractMethod, *, wrt=(), estimator=None) -> FirstPassage:
     r"""The probability that ``var`` has exceeded ``level`` at some time in ``[0, t]``, for every saved ``t``.
 
     ``P_f(t) = P(max_{0 <= s <= t} q(s) > level)``, the first-passage (failure) probability of the safe domain
@@ -142,6 +192,12 @@ def first_passage(scene: Scene, var, level, method: AbstractMethod) -> FirstPass
             barrier bounds).
         method: ``jdpim.MonteCarlo(...)`` (with standard errors) or ``jdpim.DPIM(...)``: the running maximum
             of ``var`` over the start and the end of every time step of every path.
+        wrt: parameter names (``jdpim.parameter_names(scene)``) to differentiate ``P`` with respect to.
+        estimator: how, for every name of ``wrt``: ``None`` (the default) takes ``jdpim.LikelihoodRatio()`` for
+            drift parameters of one-degree-of-freedom scenes (``E[1 (S - Sbar)]`` with the score ``S`` of the
+            whole history; no step) and ``jdpim.CentralDifference()`` otherwise (``r``, ``D``, matrices,
+            constraints: two runs with common random numbers, the same seed or point set). Standard errors
+            (Monte Carlo) come from the per-path contributions.
 
     Returns:
         :class:`FirstPassage`: ``probability`` and ``stderr`` of shape ``(S, L)``.
@@ -157,5 +213,15 @@ def first_passage(scene: Scene, var, level, method: AbstractMethod) -> FirstPass
         raise TypeError(f"scene must be a jdpim.Scene, got {type(scene).__name__}")
     if not isinstance(method, AbstractMethod):
         raise TypeError(f"method must be a jdpim method object, e.g. jdpim.MonteCarlo(), got {method!r}")
-    query = FirstPassageQuery(_quantity(scene, var), _levels(scene, var, level))
-    return method.first_passage(scene, query)
+    query = FirstPassageQuery(_quantity(scene, var), _levels(scene, var, level), *_derivatives(scene, wrt, estimator))
+    out = method.first_passage(scene, query)
+    lost = concrete(out.lost_mass)
+    if lost is not None and lost.any():
+        warnings.warn(
+            f"probability up to {float(lost.max()):.3g} is carried by paths whose state turned non-finite before "
+            "they passed a level; it is left out of FirstPassage.probability (FirstPassage.lost_mass). Reduce dt "
+            "or the excitation level, or sub-step stiff steps (Scene(..., substeps=jdpim.Substeps())).",
+            NonFiniteWarning,
+            stacklevel=2,
+        )
+    return out

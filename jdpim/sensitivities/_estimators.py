@@ -57,6 +57,14 @@ class AbstractEstimator:
         """``{parameter: LikelihoodRatio}``: score sums to accumulate along the paths, with their settings."""
         return {}
 
+    def first_passage(self, ctx, name: str):
+        """``(N, S, L)`` per-path contributions to ``dP/dtheta`` of first-passage probabilities
+        (``ctx``: ``reliability._sampled.PassageContext``)."""
+        raise ValueError(
+            f"{type(self).__name__} does not estimate first-passage derivatives; use jdpim.LikelihoodRatio() "
+            "(drift parameters) or jdpim.CentralDifference()"
+        )
+
 
 @dataclasses.dataclass(frozen=True)
 class Pathwise(AbstractEstimator):
@@ -105,6 +113,15 @@ class LikelihoodRatio(AbstractEstimator):
 
     def scores_needed(self, name: str, scene) -> dict:
         return {name: self}
+
+    def first_passage(self, ctx, name: str):
+        """``c_i = 1_i (S_i - Sbar)``: the passage indicator times the centred score of the whole history."""
+        if self.window is not None:
+            raise ValueError(
+                f"first passage depends on the whole history: LikelihoodRatio(window={self.window!r}) does not "
+                "apply; leave window=None"
+            )
+        return ctx.passed * ctx.scores[name][..., None]
 
     def estimate(self, ctx, name: str):
         """``c_i = K(y, Y_i) (S_i - Sbar)`` with the centred score of ``name``."""
@@ -183,6 +200,11 @@ class CentralDifference(AbstractEstimator):
             return (ctx.kern(xb, vb) - ctx.kern(xa, va)) / (hi - lo)
 
         return ctx.moments(contribution, (a[:, 0], a[:, 1], b[:, 0], b[:, 1]), w)
+
+    def first_passage(self, ctx, name: str):
+        """``c_i = (1_i(hi) - 1_i(lo)) / (hi - lo)`` over the common paths rerun at both ends."""
+        lo, hi = self.pair(name, ctx.values[name])
+        return (ctx.rerun(name, hi) - ctx.rerun(name, lo)) / (hi - lo)
 
     def pair(self, name: str, value: float) -> tuple[float, float]:
         """The two parameter values ``(lo, hi)`` of the difference, inside the parameter's range."""

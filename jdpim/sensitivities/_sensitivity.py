@@ -32,7 +32,7 @@ import jax.numpy as jnp
 from .._integrate import Sums
 from .._models import AbstractOscillator
 from .._pytree import check_real
-from .._scene import Scene, get_parameter, parameter_names, with_parameters
+from .._scene import Scene, parameter_names, parameter_value, with_parameters
 from ..methods._base import AbstractMethod
 from ..methods._monte_carlo import MonteCarlo
 from ..methods._paths import run_paths
@@ -61,7 +61,7 @@ _CHUNK = 512
 
 
 def _nominal(scene: Scene, name: str):
-    value = scene.noise.D if name == "D" else get_parameter(scene.model, name)
+    value = parameter_value(scene, name)
     if value is None:
         raise ValueError(f"parameter {name!r} is None (the term is left out); set it to a number to differentiate")
     return jnp.asarray(value, scene.float_dtype)
