@@ -12,6 +12,7 @@ from . import systems as systems
 from ._cpu import use_cpu_cores as use_cpu_cores
 from ._distributions import Normal as Normal
 from ._distributions import Uniform as Uniform
+from ._excitation import GaussianNodes as GaussianNodes
 from ._excitation import SpectralRepresentation as SpectralRepresentation
 from ._integrate import ImpactRule as ImpactRule
 from ._integrate import Substeps as Substeps

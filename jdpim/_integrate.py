@@ -603,7 +603,8 @@ def integrate(
         rule: impact settings.
         h: time step, s.
         q0, v0: initial coordinates and velocities, shape ``(n, d)``.
-        excitation: ``xi`` on the half-step grid, time-major, shape ``(2 T + 1, n, m)``.
+        excitation: ``xi`` on the half-step grid, time-major, shape ``(2 T + 1, n, m)``; or a function
+            :class:`jdpim._excitation.NodeSource` that draws them inside the steps (:class:`jdpim.GaussianNodes`).
         rand: random parameters per path, shape ``(n, n_random)``.
         slots: shape ``(T,)`` int: the save slot written after each step (``n_save`` = none).
         n_save: number of saved times. Slot ``n_save`` is a scratch row.
@@ -616,24 +617,41 @@ def integrate(
         ``tracked`` of shape ``(n, n_save, k)``.
     """
     step = jax.checkpoint(make_batch_step(path_model, rule, h, substeps))
-    n_half, n, m = excitation.shape
-    T = (n_half - 1) // 2
+    T = slots.shape[0]
+    if not hasattr(excitation, "shape"):  # a NodeSource: drawn inside the steps, block by block
+        block = excitation.block
+        e_first = (excitation.first(), excitation.steps(0))
+        n, m = e_first[0].shape
 
-    def nodes(k):
-        """The forcing of step ``k``: the excitation at its start, middle and end, each ``(n, m)``."""
-        return tuple(jax.lax.dynamic_index_in_dim(excitation, 2 * k + i, keepdims=False) for i in range(3))
+        def nodes(k, carry):
+            """The forcing of step ``k`` at its start, middle and end, each ``(n, m)``; the carry to the next."""
+            e_start, drawn = carry
+            drawn = jax.lax.cond((k % block == 0) & (k > 0), lambda: excitation.steps(k // block), lambda: drawn)
+            mid_end = jax.lax.dynamic_index_in_dim(drawn, k % block, axis=1, keepdims=False)
+            return (e_start, mid_end[:, 0], mid_end[:, 1]), (mid_end[:, 1], drawn)
+
+    else:
+        e_first = ()
+        _, n, m = excitation.shape
+
+        def nodes(k, e_start):
+            """The forcing of step ``k``: the excitation at its start, middle and end, each ``(n, m)``."""
+            return tuple(jax.lax.dynamic_index_in_dim(excitation, 2 * k + i, keepdims=False) for i in range(3)), ()
 
     def body(carry, inputs):
-        q, v, buf = carry
+        q, v, buf, e_start = carry
         k, slot = inputs
-        q, v = step(q, v, nodes(k), rand)
+        e, e_next = nodes(k, e_start)
+        q, v = step(q, v, e, rand)
         buf = jax.lax.dynamic_update_index_in_dim(buf, jnp.concatenate([q, v], axis=-1), slot, axis=0)
-        return (q, v, buf), None
+        return (q, v, buf, e_next), e
 
     d = q0.shape[1]
     buf = jnp.zeros((n_save + 1, n, 2 * d), dtype=q0.dtype).at[initial_slot].set(jnp.concatenate([q0, v0], axis=-1))
     if track is None:
-        (q, v, buf), _ = jax.lax.scan(body, (q0, v0, buf), (jnp.arange(T), slots))
+        (q, v, buf, _), _ = jax.lax.scan(
+            lambda c, i: (body(c, i)[0], None), (q0, v0, buf, e_first), (jnp.arange(T), slots)
+        )
         return jnp.moveaxis(buf[:n_save], 0, 1)
 
     def update(acc, q, v, q_new, v_new, e, r):
@@ -641,13 +659,14 @@ def integrate(
         return track.update(path_model(r), acc, q, v, q_new, v_new, dw)
 
     def body_tracked(carry, inputs):
-        (q, v, buf), acc, acc_buf = carry
-        (q_new, v_new, buf), _ = body((q, v, buf), inputs)
-        acc = jax.vmap(update)(acc, q, v, q_new, v_new, nodes(inputs[0]), rand)
+        (q, v, buf, e_start), acc, acc_buf = carry
+        (q_new, v_new, buf, e_next), e = body((q, v, buf, e_start), inputs)
+        acc = jax.vmap(update)(acc, q, v, q_new, v_new, e, rand)
         acc_buf = jax.lax.dynamic_update_index_in_dim(acc_buf, acc, inputs[1], axis=0)
-        return ((q_new, v_new, buf), acc, acc_buf), None
+        return ((q_new, v_new, buf, e_next), acc, acc_buf), None
 
     acc = jax.vmap(lambda q, v, r: track.init(path_model(r), q, v, jnp.zeros((m,), q.dtype)))(q0, v0, rand)
     acc_buf = jnp.zeros((n_save + 1, *acc.shape), q0.dtype).at[initial_slot].set(acc)
-    ((_, _, buf), _, acc_buf), _ = jax.lax.scan(body_tracked, ((q0, v0, buf), acc, acc_buf), (jnp.arange(T), slots))
+    init = ((q0, v0, buf, e_first), acc, acc_buf)
+    ((_, _, buf, _), _, acc_buf), _ = jax.lax.scan(body_tracked, init, (jnp.arange(T), slots))
     return jnp.moveaxis(buf[:n_save], 0, 1), jnp.moveaxis(acc_buf[:n_save], 0, 1)

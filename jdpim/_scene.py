@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._distributions import ANGLE, Normal, Uniform
-from ._excitation import SpectralGrid, SpectralRepresentation
+from ._excitation import GaussianNodes, SpectralGrid, SpectralRepresentation
 from ._integrate import ImpactRule, Substeps
 from ._mdof import MDOFOscillator
 from ._models import AbstractOscillator, AbstractSystem, Oscillator, n_sources_of
@@ -37,7 +37,8 @@ class Scene:
         x0, v0: initial displacement and velocity (traced); ``x0=None`` starts at the barrier (or 0).
         random: random system parameters, ``{name: Normal(...) | Uniform(...)}``, where ``name`` is a
             model field or ``"x0"``/``"v0"``. They become extra DPIM input dimensions.
-        excitation: spectral-representation settings.
+        excitation: how the white noise is generated: ``jdpim.SpectralRepresentation()`` (the default; DPIM
+            needs it) or ``jdpim.GaussianNodes()`` (Monte Carlo: Gaussian values drawn inside the steps).
         impacts: impact-resolution settings.
         substeps: sub-stepping of stiff steps (cubic damping at large velocities), e.g. ``jdpim.Substeps()``;
             ``None`` (default) traces none: blow-up is then counted and warned about (``NonFiniteWarning``).
@@ -59,7 +60,7 @@ class Scene:
     dt: float = static_field(default=0.01)
     save_at: tuple = static_field(default=None)
     random: Any = static_field(default=())
-    excitation: SpectralRepresentation = static_field(default_factory=SpectralRepresentation)
+    excitation: SpectralRepresentation | GaussianNodes = static_field(default_factory=SpectralRepresentation)
     impacts: ImpactRule = static_field(default_factory=ImpactRule)
     substeps: Substeps | None = static_field(default=None)
     dtype: str | None = static_field(default=None)
@@ -85,10 +86,17 @@ class Scene:
         object.__setattr__(self, "dt", float(self.dt))
         object.__setattr__(self, "save_at", self._checked_save_at(self.save_at))
         object.__setattr__(self, "random", self._checked_random(self.random))
-        for name, kind in (("excitation", SpectralRepresentation), ("impacts", ImpactRule), ("substeps", Substeps)):
+        kinds = (
+            ("excitation", (SpectralRepresentation, GaussianNodes)),
+            ("impacts", ImpactRule),
+            ("substeps", Substeps),
+        )
+        for name, kind in kinds:
             if not isinstance(getattr(self, name), kind) and not (name == "substeps" and self.substeps is None):
-                raise TypeError(f"{name} must be a jdpim.{kind.__name__}, got {getattr(self, name)!r}")
-        self.spectral_grid()  # the cutoff must lie below the Nyquist frequency of the stage grid
+                what = " or jdpim.".join(k.__name__ for k in (kind if isinstance(kind, tuple) else (kind,)))
+                raise TypeError(f"{name} must be a jdpim.{what}, got {getattr(self, name)!r}")
+        if isinstance(self.excitation, SpectralRepresentation):
+            self.spectral_grid()  # the cutoff must lie below the Nyquist frequency of the stage grid
         if self.dtype not in (None, "float32", "float64"):
             raise ValueError(f"dtype must be None, 'float32' or 'float64', got {self.dtype!r}")
         if self.dtype == "float64" and not jax.config.jax_enable_x64:

@@ -1,4 +1,4 @@
-"""``python -m jdpim.bench {accuracy,budget,speed,throughput,sensitivity,mdof} ...``: benchmarks."""
+"""``python -m jdpim.bench {accuracy,budget,speed,throughput,sensitivity,mdof,forcing} ...``: benchmarks."""
 
 from __future__ import annotations
 
@@ -41,6 +41,11 @@ def main(argv=None, *, from_program=None) -> int:
     mdof = sub.add_parser("mdof", help="impact damper: dt convergence against a small-dt reference, speed per dof")
     mdof.add_argument("--quick", action="store_true", help="t_end 20 s, 4000 paths; speed at 1e4 paths, t = 50 s")
     mdof.add_argument("--out", type=pathlib.Path, default=pathlib.Path("jdpim_out/bench"))
+    forcing = sub.add_parser(
+        "forcing", help="Monte Carlo forcing: spectral against drawn in the step, weak error and time"
+    )
+    forcing.add_argument("--quick", action="store_true", help="t_end 10 s, 2e4 paths (else 20 s, 1e5)")
+    forcing.add_argument("--out", type=pathlib.Path, default=pathlib.Path("jdpim_out/bench"))
     thr = sub.add_parser("throughput", help="path-steps per second against batch and chunk size, all devices")
     thr.add_argument("--sizes", type=_positive_int, nargs="+", default=[1000, 10_000], help="numbers of paths")
     thr.add_argument(
@@ -83,6 +88,10 @@ def main(argv=None, *, from_program=None) -> int:
         from .mdof import run_mdof
 
         files = run_mdof(args.out, quick=args.quick, log=lambda s: print(s, flush=True))
+    elif args.command == "forcing":
+        from .forcing import run_forcing
+
+        files = run_forcing(args.out, quick=args.quick, log=lambda s: print(s, flush=True))
     elif args.command == "throughput":
         from .throughput import run_throughput
 

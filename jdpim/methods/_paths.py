@@ -20,7 +20,7 @@ import numpy as np
 
 from .._cpu import host_memory
 from .._distributions import elementary_ppf
-from .._excitation import gaussian_coefficients, random_function_coefficients, synthesize
+from .._excitation import GaussianNodes, gaussian_coefficients, random_function_coefficients, synthesize
 from .._integrate import integrate
 from .._points import PointSet, select_points
 from .._pytree import check_int, concrete
@@ -42,7 +42,15 @@ class NonFiniteWarning(RuntimeWarning):
 
 def _largest_chunk(scene: Scene) -> int:
     """The most paths one chunk may hold: XLA indexes arrays with 32-bit integers."""
-    return (2**31 - 1) // (scene.n_sources * scene.spectral_grid().n_fft)
+    return (2**31 - 1) // _values_per_path(scene)
+
+
+def _values_per_path(scene: Scene) -> int:
+    """Values one path holds in a chunk: its spectral excitation over the FFT grid, or (noise drawn inside the
+    steps) its saved states."""
+    if isinstance(scene.excitation, GaussianNodes):
+        return 2 * scene.model.dimension * (len(scene.save_at) + 1)
+    return scene.n_sources * scene.spectral_grid().n_fft
 
 
 def memory_budget() -> int:
@@ -80,34 +88,44 @@ def default_chunk_size(scene: Scene, n_paths: int) -> int:
     half its memory, as far as 32-bit indexing allows: a GPU's time per step barely grows with the paths
     in a chunk, so large chunks are what make it fast (``docs/speed.md``).
     """
-    grid = scene.spectral_grid()
-    bytes_per_path = 4 * scene.float_dtype.itemsize * scene.n_sources * grid.n_fft
+    bytes_per_path = 4 * scene.float_dtype.itemsize * _values_per_path(scene)
     cap = CPU_CHUNK_BYTES // scene.float_dtype.itemsize if jax.local_devices()[0].platform == "cpu" else n_paths
     largest = max(1, min(n_paths, cap, memory_budget() // bytes_per_path, _largest_chunk(scene)))
     n_chunks = -(-n_paths // largest)
     return -(-n_paths // n_chunks)  # equal chunks: the least padding
 
 
+def _monte_carlo_keys(scene: Scene, row):
+    """The noise key ``(2,)`` (key data) and random-parameter values ``(n_random,)`` of one Monte Carlo path."""
+    k_noise, k_par = jax.random.split(jax.random.wrap_key_data(row))
+    n_rand = len(scene.random)
+    u = jax.random.uniform(k_par, (n_rand,), jnp.float32, minval=1e-7, maxval=1.0 - 1e-7).astype(scene.float_dtype)
+    rand = jnp.stack([elementary_ppf(d, u[j]) for j, (_, d) in enumerate(scene.random)]) if n_rand else u
+    return jax.random.key_data(k_noise), rand
+
+
 def _path_inputs(scene: Scene, kind: str, row):
     """Spectral coefficients ``(m, K)`` and random-parameter values ``(n_random,)`` of one path."""
     grid = scene.spectral_grid()
     mixing = scene.noise.mixing().astype(scene.float_dtype)
-    m, n_rand = scene.n_sources, len(scene.random)
+    m = scene.n_sources
     if kind == "dpim":
         return random_function_coefficients(row[: 2 * m], grid, mixing), row[2 * m :]
-    key = jax.random.wrap_key_data(row)
-    k_noise, k_par = jax.random.split(key)
-    coeffs = gaussian_coefficients(k_noise, m, grid, mixing, scene.float_dtype)
-    u = jax.random.uniform(k_par, (n_rand,), jnp.float32, minval=1e-7, maxval=1.0 - 1e-7).astype(scene.float_dtype)
-    rand = jnp.stack([elementary_ppf(d, u[j]) for j, (_, d) in enumerate(scene.random)]) if n_rand else u
+    k_noise, rand = _monte_carlo_keys(scene, row)
+    coeffs = gaussian_coefficients(jax.random.wrap_key_data(k_noise), m, grid, mixing, scene.float_dtype)
     return coeffs, rand
 
 
 def _simulate_chunk(scene: Scene, kind: str, rows, track=None):
     """States ``(n, S, 2 d)`` of one chunk of paths (and the values of ``track`` at the saved times: ``integrate``)."""
     dtype = scene.float_dtype
-    coeffs, rand = jax.vmap(functools.partial(_path_inputs, scene, kind))(rows)
-    excitation = synthesize(coeffs, scene.spectral_grid()).astype(dtype)
+    if isinstance(scene.excitation, GaussianNodes):  # drawn inside the steps from each path's noise key
+        k_noise, rand = jax.vmap(functools.partial(_monte_carlo_keys, scene))(rows)
+        mixing = scene.noise.mixing().astype(dtype)
+        excitation = scene.excitation.node_source(k_noise, mixing, scene.dt, dtype)
+    else:
+        coeffs, rand = jax.vmap(functools.partial(_path_inputs, scene, kind))(rows)
+        excitation = synthesize(coeffs, scene.spectral_grid()).astype(dtype)
     names = tuple(name for name, _ in scene.random)
     model_names = tuple(n for n in names if n not in ("x0", "v0"))
     model_cols = jnp.asarray([names.index(n) for n in model_names], dtype=jnp.int32)
@@ -342,6 +360,11 @@ def _chunk(scene: Scene, n: int, chunk_size: int | None) -> int:
 
 def dpim_inputs(scene: Scene, n_points: int = 1000, *, points: PointSet | None = None, chunk_size=None):
     """``(rows, weights, chunk_size)`` of a DPIM run: the points ``(N, d)``, their probabilities ``(N,)``."""
+    if isinstance(scene.excitation, GaussianNodes):
+        raise ValueError(
+            "DPIM needs the spectral representation (Scene(excitation=jdpim.SpectralRepresentation())): its "
+            "random functions of two variables per source; GaussianNodes is for Monte Carlo"
+        )
     if points is None:
         check_int("n_points", n_points, low=2)
         check_memory(scene, n_points, "n_points", 64 * len(scene.input_distributions()))

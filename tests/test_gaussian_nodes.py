@@ -1,0 +1,57 @@
+"""Monte Carlo with Gaussian forcing drawn inside the steps (``jdpim.GaussianNodes``)."""
+
+import numpy as np
+import pytest
+
+import jdpim
+
+NODES = jdpim.GaussianNodes()
+
+
+def test_a_linear_oscillator_reaches_the_exact_stationary_variance():
+    """``x'' + c x' + x = xi``: ``E[x^2] = E[v^2] = D / c`` at stationarity (4000 paths, 11 times in [20, 40] s)."""
+    D, c = 0.05, 0.4
+    scene = jdpim.Scene(
+        jdpim.VibroImpactOscillator(alpha=c, gamma=None, barrier=None),
+        noise=jdpim.WhiteNoise(D=D),
+        t_end=40.0,
+        dt=0.01,
+        save_at=tuple(np.linspace(20.0, 40.0, 11)),
+        excitation=NODES,
+    )
+    s = np.asarray(jdpim.solve(scene, jdpim.MonteCarlo(n_samples=4000, seed=0)).states, float)
+    for k in (0, 1):
+        y = s[..., k] ** 2
+        per_path = y.mean(axis=1)  # times 2 s apart are correlated: the error from per-path means
+        se = per_path.std() / np.sqrt(per_path.size)
+        assert abs(y.mean() - D / c) < 4 * se, (k, y.mean(), D / c, se)
+
+
+def test_runs_are_deterministic_independent_of_chunks_and_share_the_random_parameters():
+    scene = jdpim.Scene(
+        jdpim.VibroImpactOscillator(alpha=0.4, barrier=None),  # no impacts to amplify rounding
+        t_end=5.0,
+        dt=0.01,
+        save_at=(0.0, 5.0),
+        excitation=NODES,
+        random={"x0": jdpim.Uniform(0.0, 0.5)},
+    )
+    a = np.asarray(jdpim.solve(scene, jdpim.MonteCarlo(n_samples=300, seed=1)).states)
+    b = np.asarray(jdpim.solve(scene, jdpim.MonteCarlo(n_samples=300, seed=1, chunk_size=64)).states)
+    c = np.asarray(jdpim.solve(scene, jdpim.MonteCarlo(n_samples=300, seed=2)).states)
+    np.testing.assert_array_equal(a, np.asarray(jdpim.solve(scene, jdpim.MonteCarlo(n_samples=300, seed=1)).states))
+    np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6)  # chunks change only the rounding
+    assert not np.allclose(a[:, -1], c[:, -1])
+    spectral = jdpim.solve(scene.replace(excitation=jdpim.SpectralRepresentation()), jdpim.MonteCarlo(300, seed=1))
+    np.testing.assert_array_equal(a[:, 0], np.asarray(spectral.states[:, 0]))  # the same random start per path
+    assert not np.allclose(a[:, -1], np.asarray(spectral.states[:, -1]))  # and other forcing
+
+
+def test_dpim_refuses_and_bad_settings_fail_in_one_line():
+    scene = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=1.0, dt=0.01, excitation=NODES)
+    with pytest.raises(ValueError, match="DPIM needs the spectral representation"):
+        jdpim.solve(scene, jdpim.DPIM(n_points=10))
+    with pytest.raises(ValueError, match="block must be an integer >= 1"):
+        jdpim.GaussianNodes(block=0)
+    with pytest.raises(TypeError, match="excitation must be a jdpim.SpectralRepresentation or jdpim.GaussianNodes"):
+        jdpim.Scene(jdpim.VibroImpactOscillator(), excitation="nodes")
