@@ -126,6 +126,16 @@ def _simulate_chunk(scene: Scene, kind: str, rows, track=None):
     else:
         coeffs, rand = jax.vmap(functools.partial(_path_inputs, scene, kind))(rows)
         excitation = synthesize(coeffs, scene.spectral_grid()).astype(dtype)
+    return integrate_forcing(scene, excitation, rand, track)
+
+
+def integrate_forcing(scene: Scene, excitation, rand, track=None):
+    """States ``(n, S, 2 d)`` of ``n`` paths under a given forcing (and ``track``'s values, see ``integrate``).
+
+    ``excitation``: ``(2 T + 1, n, m)`` on the half-step grid, or a node source; ``rand``: the random
+    parameters ``(n, n_random)`` in the order of ``scene.random``.
+    """
+    dtype = scene.float_dtype
     names = tuple(name for name, _ in scene.random)
     model_names = tuple(n for n in names if n not in ("x0", "v0"))
     model_cols = jnp.asarray([names.index(n) for n in model_names], dtype=jnp.int32)
@@ -133,7 +143,7 @@ def _simulate_chunk(scene: Scene, kind: str, rows, track=None):
     def path_model(r):
         return scene.model if r is None else with_model_parameters(scene.model, model_names, r[model_cols])
 
-    shape = (rows.shape[0], scene.model.dimension)
+    shape = (rand.shape[0], scene.model.dimension)
     x_start, v_start = scene.initial_state()
     x0 = rand[:, names.index("x0"), None] if "x0" in names else jnp.broadcast_to(jnp.asarray(x_start, dtype), shape)
     v0 = rand[:, names.index("v0"), None] if "v0" in names else jnp.broadcast_to(jnp.asarray(v_start, dtype), shape)

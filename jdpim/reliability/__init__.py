@@ -2,3 +2,4 @@
 
 from ._first_passage import FirstPassage as FirstPassage
 from ._first_passage import first_passage as first_passage
+from ._subset import SubsetSimulation as SubsetSimulation

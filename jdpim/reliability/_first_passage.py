@@ -63,6 +63,7 @@ class FirstPassage:
         method: the method's name.
         derivative: ``{name: (S, L) array}``, ``dP/dtheta`` for each parameter of ``wrt`` (``None`` without).
         derivative_stderr: ``{name: (S, L) array}``, their sampling standard errors (``None`` for DPIM).
+        n_evaluations: responses computed (paths integrated) by subset simulation; ``None`` otherwise.
 
     A pytree (leaves: ``levels``, ``probability``, ``stderr``, ``lost_mass`` and the derivatives): it passes
     through ``jax.jit``.
@@ -76,6 +77,7 @@ class FirstPassage:
     method: str = static_field(default="monte_carlo")
     derivative: Any = None
     derivative_stderr: Any = None
+    n_evaluations: int | None = static_field(default=None)
 
     def __post_init__(self):
         object.__setattr__(self, "times", static_times(self.times))
