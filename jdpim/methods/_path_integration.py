@@ -147,6 +147,11 @@ class PathIntegration(AbstractMethod):
 
         return grid_sensitivity(scene, self, query)
 
+    def first_passage(self, scene: Scene, query):
+        from ..reliability._absorbing import absorbing_first_passage  # absorption builds on the solver
+
+        return absorbing_first_passage(scene, self, query)
+
 
 jax.tree_util.register_dataclass(
     PathIntegration, data_fields=[], meta_fields=[f.name for f in dataclasses.fields(PathIntegration)]
@@ -321,9 +326,8 @@ def _setup(scene: Scene, settings: PathIntegration, extents):
     return grid, ops, weights, edge
 
 
-@functools.partial(jax.jit, static_argnames=("settings", "extents", "initial"))
-def _transient(scene: Scene, settings: PathIntegration, extents, initial):
-    grid, ops, weights, edge = _setup(scene, settings, extents)
+def start_density(scene: Scene, settings: PathIntegration, grid, weights, initial):
+    """``(p, t_start)``: the transient's start density ``(n_x, n_v)`` (mass 1 on the grid) and its time, s."""
     dtype = grid.x.dtype
     if initial is None:
         p, _ = _point_start(scene, grid, dtype, settings.t0)
@@ -334,7 +338,25 @@ def _transient(scene: Scene, settings: PathIntegration, extents, initial):
         start = 0.0
     if p.shape != (settings.n_x, settings.n_v):
         raise ValueError(f"initial(x, v) must return the grid's shape {(settings.n_x, settings.n_v)}, got {p.shape}")
-    p = p / jnp.sum(weights * p)
+    return p / jnp.sum(weights * p), start
+
+
+def saved_scan(body, carry, steps):
+    """The carries of ``lax.scan(body, carry)`` after each of ``steps`` (increasing counts of steps), a list."""
+    outs, done = [], 0
+    for k in steps:
+        if k > done:
+            carry, _ = jax.lax.scan(body, carry, None, length=k - done)
+            done = k
+        outs.append(carry)
+    return outs
+
+
+@functools.partial(jax.jit, static_argnames=("settings", "extents", "initial"))
+def _transient(scene: Scene, settings: PathIntegration, extents, initial):
+    grid, ops, weights, edge = _setup(scene, settings, extents)
+    dtype = grid.x.dtype
+    p, start = start_density(scene, settings, grid, weights, initial)
     zero = jnp.zeros((), dtype)
     carry = (p, zero, jnp.sum(edge * p))
 
@@ -346,12 +368,7 @@ def _transient(scene: Scene, settings: PathIntegration, extents, initial):
         return (p, defect + jnp.abs(1 - m), jnp.maximum(leak, jnp.sum(edge * p))), None
 
     steps = [int(round((t - start) / settings.tau)) for t in scene.save_at]
-    outs, done = [], 0
-    for k in steps:
-        if k > done:
-            carry, _ = jax.lax.scan(body, carry, None, length=k - done)
-            done = k
-        outs.append(carry)
+    outs = saved_scan(body, carry, steps)
     density, defect, leak = (jnp.stack(z) for z in zip(*outs, strict=True))
     nan = jnp.full(density.shape[:1], jnp.nan, dtype)
     none = jnp.zeros(density.shape[:1], dtype)
@@ -537,9 +554,8 @@ def path_integration(
     return solve(scene, dataclasses.replace(settings, **changes))
 
 
-def _run(scene: Scene, settings: PathIntegration) -> GridResult:
-    stationary, initial = settings.stationary, settings.initial
-    _validate(scene, settings, initial, stationary)
+def resolved(scene: Scene, settings: PathIntegration) -> tuple[PathIntegration, tuple[float, float]]:
+    """``(settings, extents)``: the settings with ``order`` chosen where it is ``None``, and ``(x_max, v_max)``."""
     extents = default_extents(scene, settings)
     if settings.order is None:
         r = concrete(scene.model.r) if scene.model.has_barrier else np.ones(())
@@ -549,6 +565,13 @@ def _run(scene: Scene, settings: PathIntegration) -> GridResult:
                 f"but r is traced (differentiated or vmapped): give order=2 (r < {LINEAR_BELOW_R}) or order=4"
             )
         settings = dataclasses.replace(settings, order=2 if float(np.max(r)) < LINEAR_BELOW_R else 4)
+    return settings, extents
+
+
+def _run(scene: Scene, settings: PathIntegration) -> GridResult:
+    stationary, initial = settings.stationary, settings.initial
+    _validate(scene, settings, initial, stationary)
+    settings, extents = resolved(scene, settings)
     _check_resolution(scene, settings, extents, point_start=initial is None and not stationary)
     res = _solve(scene, settings, extents, stationary, initial)
     _report(res, settings)

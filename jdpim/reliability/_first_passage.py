@@ -63,10 +63,12 @@ class FirstPassage:
         method: the method's name.
         derivative: ``{name: (S, L) array}``, ``dP/dtheta`` for each parameter of ``wrt`` (``None`` without).
         derivative_stderr: ``{name: (S, L) array}``, their sampling standard errors (``None`` for DPIM).
+        grid_error: shape ``(S, L)``, path integration with ``estimate_error=True``: ``|probability - the same on
+            a grid twice as coarse|``, the estimated discretisation error; else ``None``.
         n_evaluations: responses computed (paths integrated) by subset simulation; ``None`` otherwise.
 
-    A pytree (leaves: ``levels``, ``probability``, ``stderr``, ``lost_mass`` and the derivatives): it passes
-    through ``jax.jit``.
+    A pytree (leaves: ``levels``, ``probability``, ``stderr``, ``lost_mass``, the derivatives and
+    ``grid_error``): it passes through ``jax.jit``.
     """
 
     times: tuple = static_field()
@@ -77,6 +79,7 @@ class FirstPassage:
     method: str = static_field(default="monte_carlo")
     derivative: Any = None
     derivative_stderr: Any = None
+    grid_error: Any = None
     n_evaluations: int | None = static_field(default=None)
 
     def __post_init__(self):
@@ -193,7 +196,9 @@ def first_passage(scene: Scene, var, level, method: AbstractMethod, *, wrt=(), e
         level: one level or a 1-D sequence of levels (finite; above the lower bound of a coordinate that a
             barrier bounds).
         method: ``jdpim.MonteCarlo(...)`` (with standard errors) or ``jdpim.DPIM(...)``: the running maximum
-            of ``var`` over the start and the end of every time step of every path.
+            of ``var`` over the start and the end of every time step of every path; or
+            ``jdpim.PathIntegration(...)`` (one degree of freedom): the transient density absorbed where
+            ``var > level`` after every step (``estimate_error=True`` adds ``FirstPassage.grid_error``).
         wrt: parameter names (``jdpim.parameter_names(scene)``) to differentiate ``P`` with respect to.
         estimator: how, for every name of ``wrt``: ``None`` (the default) takes ``jdpim.LikelihoodRatio()`` for
             drift parameters of one-degree-of-freedom scenes (``E[1 (S - Sbar)]`` with the score ``S`` of the

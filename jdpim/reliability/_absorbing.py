@@ -1,0 +1,176 @@
+r"""First passage by path integration: the transient density on its grid, absorbed where ``q > level``.
+
+Each step is the transient's step (``StepOperator.step``, renormalised to the mass it started with, as
+``solve`` renormalises), after which every node keeps only the part of its cell where ``q <= level``
+(``keep``, the fraction of ``SUBCELLS**2`` points of the cell). The surviving mass at a saved time is
+``1 - P_f(t)``. The start density (a Gaussian at ``t0`` for a point start) is absorbed too, so mass beyond
+the level at ``t0`` counts as having passed it.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import warnings
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._models import AbstractOscillator
+from ..methods._path_integration import (
+    PathIntegration,
+    PathIntegrationWarning,
+    _check_resolution,
+    _coarser,
+    _setup,
+    _validate,
+    resolved,
+    saved_scan,
+    start_density,
+)
+from ..methods._pi_operator import drift_and_diffusion, make_grid
+from ._first_passage import Coordinate, FirstPassage, FirstPassageQuery
+
+SUBCELLS = 8  # points per axis and node cell at which the quantity is compared with the level
+DEFECT_TOL = 1e-3  # mass that left the grid unabsorbed (and was put back by renormalisation) before a warning
+
+
+def absorbing_first_passage(scene, settings: PathIntegration, query: FirstPassageQuery) -> FirstPassage:
+    """``jdpim.first_passage`` by path integration (``PathIntegration.first_passage``)."""
+    if settings.stationary:
+        raise ValueError(
+            "PathIntegration(stationary=True) cannot compute first-passage probabilities (first passage is "
+            "transient): use stationary=False"
+        )
+    if not isinstance(scene.model, AbstractOscillator):
+        n = getattr(scene.model, "dimension", None)
+        raise ValueError(
+            f"first passage by path integration needs a one-degree-of-freedom scene (the model has {n} degrees of "
+            "freedom): use jdpim.MonteCarlo or jdpim.DPIM"
+        )
+    if query.wrt:
+        raise ValueError(
+            f"path integration gives no first-passage derivatives (wrt={query.wrt!r}): use jdpim.MonteCarlo or "
+            "jdpim.DPIM for derivatives"
+        )
+    initial = settings.initial
+    _validate(scene, settings, initial, stationary=False)
+    settings, extents = resolved(scene, settings)
+    _check_resolution(scene, settings, extents, point_start=initial is None)
+    probability, defect, leak = _probability(scene, settings, extents, query, "")
+    grid_error = None
+    if settings.estimate_error:
+        coarse = _coarser(scene, settings, False, initial)
+        p_coarse, _, _ = _probability(scene, coarse, extents, query, " (the coarse grid of estimate_error=True)")
+        grid_error = jax.lax.stop_gradient(jnp.abs(probability - p_coarse))
+    _report(probability, defect, leak, settings)
+    levels = jnp.asarray(query.levels, probability.dtype)
+    lost = jnp.zeros_like(probability)  # a non-finite density makes its probabilities NaN (and warns) instead
+    return FirstPassage(scene.save_at, levels, probability, None, lost, settings.name, grid_error=grid_error)
+
+
+def _probability(scene, settings: PathIntegration, extents, query: FirstPassageQuery, which: str):
+    """``(probability, defect, leak)``, each ``(S, L)``, on the grid of ``settings``."""
+    grid = make_grid(scene.model, settings.n_x, settings.n_v, *extents, scene.float_dtype)
+    levels = jnp.asarray(query.levels, scene.float_dtype)
+    keep, node_max = _keep(query.quantity, grid.x, grid.v, levels)
+    _check_levels(scene, settings, query, grid, float(node_max), which)
+    survival, defect, leak = _survival(scene, settings, extents, settings.initial, keep)
+    return 1.0 - survival.T, defect.T, leak.T
+
+
+@functools.partial(jax.jit, static_argnames=("quantity",))
+def _keep(quantity, x, v, levels):
+    """``(keep, node_max)``: the fraction ``(L, n_x, n_v)`` of each node's cell where ``quantity <= level``
+    (``SUBCELLS**2`` points per cell, clipped to the grid), and the largest value of ``quantity`` on a node."""
+    dx, dv = x[1] - x[0], v[1] - v[0]
+    offsets = (jnp.arange(SUBCELLS, dtype=x.dtype) + 0.5) / SUBCELLS - 0.5
+    xs, vs = x[:, None] + dx * offsets[None, :], v[:, None] + dv * offsets[None, :]  # (n_x, m), (n_v, m)
+    tol = 1e-6 * jnp.maximum(dx, dv)
+    inx = ((xs >= x[0] - tol) & (xs <= x[-1] + tol)).astype(x.dtype)
+    inv = ((vs >= v[0] - tol) & (vs <= v[-1] + tol)).astype(x.dtype)
+    weight = inx[:, None, :, None] * inv[None, :, None, :]  # (n_x, n_v, m, m)
+    X, V = jnp.broadcast_arrays(xs[:, None, :, None], vs[None, :, None, :])
+    q = jax.vmap(quantity)(jnp.stack([X.ravel(), V.ravel()], -1)).reshape(X.shape)
+    nodes = jax.vmap(quantity)(jnp.stack(jnp.meshgrid(x, v, indexing="ij"), -1).reshape(-1, 2))
+    total = jnp.sum(weight, axis=(2, 3))
+
+    def fraction(level):
+        return jnp.sum(weight * (q <= level), axis=(2, 3)) / total
+
+    return jax.lax.map(fraction, levels), jnp.max(jnp.where(jnp.isfinite(nodes), nodes, -jnp.inf))
+
+
+def _check_levels(scene, settings: PathIntegration, query: FirstPassageQuery, grid, node_max: float, which: str):
+    """One-line errors where a level is not exceeded on the grid, or a coordinate's level is too near its end."""
+    levels, quantity = np.asarray(query.levels), query.quantity
+    name = quantity.name if isinstance(quantity, Coordinate) else "the quantity"
+    x_lo, x_hi, v_hi = float(grid.x[0]), float(grid.x[-1]), float(grid.v[-1])
+    ranges = f"x in [{x_lo:.4g}, {x_hi:.4g}], v in [{-v_hi:.4g}, {v_hi:.4g}]"
+    high = levels[levels >= node_max]
+    if high.size:
+        raise ValueError(
+            f"level {high.tolist()} is not exceeded anywhere on the path-integration grid{which} ({name} <= "
+            f"{node_max:.4g} on {ranges}): raise x_max/v_max in jdpim.PathIntegration so that the grid reaches "
+            "past the level"
+        )
+    if not isinstance(quantity, Coordinate):
+        return
+    dx, dv = float(grid.dx), float(grid.dv)
+    if quantity.index == 0:  # a node below the level moves at most v_max tau in a step (plus the stencil)
+        reach, end = v_hi * settings.tau + 2 * dx, x_hi
+    else:  # diffusion over a step (5 standard deviations), plus the stencil
+        _, q = drift_and_diffusion(scene.model, scene.noise.D)
+        b = float(grid.x[0]) if scene.model.has_barrier else 0.0
+        reach = 5 * math.sqrt(2 * float(q(jnp.asarray(b), jnp.asarray(0.0))) * settings.tau) + 2 * dv
+        end = v_hi
+    near = levels[levels > end - reach]
+    if near.size:
+        raise ValueError(
+            f"level {near.tolist()} of {name!r} lies within {reach:.3g} (one step's reach) of the path-integration "
+            f"grid's end {name} = {end:.4g}{which} ({ranges}): mass could leave the grid before it is absorbed; "
+            "raise x_max/v_max in jdpim.PathIntegration"
+        )
+
+
+@functools.partial(jax.jit, static_argnames=("settings", "extents", "initial"))
+def _survival(scene, settings: PathIntegration, extents, initial, keep):
+    """``(survival, defect, leak)``, each ``(L, S)``: the mass kept at every saved time for each ``keep``
+    ``(L, n_x, n_v)``, the mass the steps lost at the grid's edges (put back by renormalisation), and the
+    largest mass in the outermost node rows."""
+    grid, ops, weights, edge = _setup(scene, settings, extents)
+    p0, start = start_density(scene, settings, grid, weights, initial)
+    steps = [int(round((t - start) / settings.tau)) for t in scene.save_at]
+
+    def absorbed(keep):
+        def body(carry, _):
+            p, defect, leak = carry
+            before = jnp.sum(weights * p)
+            p = ops.step(p)
+            after = jnp.sum(weights * p)
+            p = p * jnp.where(after > 0, before / after, 0.0) * keep
+            return (p, defect + jnp.abs(before - after), jnp.maximum(leak, jnp.sum(edge * p))), None
+
+        p = p0 * keep
+        outs = saved_scan(body, (p, jnp.zeros((), p.dtype), jnp.sum(edge * p)), steps)
+        return tuple(jnp.stack(z) for z in zip(*[(jnp.sum(weights * p), d, e) for p, d, e in outs], strict=True))
+
+    return jax.vmap(absorbed)(keep)
+
+
+def _report(probability, defect, leak, settings: PathIntegration) -> None:
+    problems = []
+    if not np.all(np.isfinite(probability)):
+        problems.append("non-finite probabilities (the density became non-finite)")
+    if np.max(defect) > DEFECT_TOL:
+        problems.append(
+            f"mass {np.max(defect):.2e} left the grid unabsorbed and was put back by renormalisation "
+            f"(> {DEFECT_TOL:g}): enlarge x_max/v_max"
+        )
+    if np.max(leak) > settings.leak_tol:
+        problems.append(
+            f"mass {np.max(leak):.2e} reached the grid's edges (> leak_tol={settings.leak_tol:g}): enlarge x_max/v_max"
+        )
+    if problems:
+        warnings.warn("path integration first passage: " + "; ".join(problems), PathIntegrationWarning, stacklevel=4)

@@ -1,0 +1,129 @@
+"""First passage by path integration (absorbing boundary): against Monte Carlo on the reference scene, exact
+bounds on the elastic linear oscillator, and one-line errors for bad input.
+
+Grids are small (compile time dominates); ``x_max``/``v_max`` are set a little past the largest level, where
+the absorbed density lives, rather than the scene's default extents.
+"""
+
+import math
+
+import numpy as np
+import pytest
+from scipy.linalg import expm
+from scipy.stats import multivariate_normal
+
+import jdpim
+from jdpim import exact
+
+SAVE_AT = (5.0, 10.0)
+LEVELS = np.array([0.3, 0.5, 0.7])
+
+
+def reference_scene():
+    return jdpim.Scene(
+        jdpim.VibroImpactOscillator(), noise=jdpim.WhiteNoise(D=0.03), t_end=10.0, dt=0.01, save_at=SAVE_AT
+    )
+
+
+@pytest.fixture(scope="module")
+def reference():
+    scene = reference_scene()
+    pi = jdpim.first_passage(
+        scene, "x", LEVELS, jdpim.PathIntegration(n_x=121, n_v=241, x_max=1.6, v_max=1.6, estimate_error=True)
+    )
+    mc = jdpim.first_passage(scene, "x", LEVELS, jdpim.MonteCarlo(n_samples=20_000, seed=0))
+    return pi, mc
+
+
+def test_reference_scene_defaults():
+    model = jdpim.VibroImpactOscillator()
+    assert (model.alpha, model.gamma, model.r, model.barrier) == (0.03, 0.03, 0.98, 0.0)
+
+
+def test_agrees_with_monte_carlo(reference):
+    pi, mc = reference
+    assert pi.method == "path_integration" and pi.stderr is None and pi.times == SAVE_AT
+    assert pi.probability.shape == pi.grid_error.shape == (2, 3) and np.all(np.asarray(pi.lost_mass) == 0)
+    p, err = np.asarray(pi.probability), np.asarray(pi.grid_error)
+    p_mc, se = np.asarray(mc.probability), np.asarray(mc.stderr)
+    used = (p_mc > 0.01) & (p_mc < 0.9)
+    assert used.sum() >= 4
+    assert np.all(err[used] < 0.05)  # the grid error stated is small enough to make the comparison a test
+    assert np.all(np.abs(p - p_mc)[used] <= 4 * se[used] + err[used])
+
+
+def test_monotone_in_time_and_level(reference):
+    p = np.asarray(reference[0].probability)
+    assert np.all(p >= -1e-6) and np.all(p <= 1 + 1e-6)
+    assert np.all(np.diff(p, axis=0) >= -1e-6)  # later: more has passed
+    assert np.all(np.diff(p, axis=1) <= 1e-6)  # higher level: less has passed
+
+
+def _discrete_maximum(alpha, D, level, times):
+    """``P(max_k |y(t_k)| > level)`` for the linear oscillator ``y'' + alpha y' + y = xi`` from rest (exact Gaussian
+    law of ``y`` at the times; a multivariate normal rectangle)."""
+    A = np.array([[0.0, 1.0], [-1.0, -alpha]])
+    n = len(times)
+    cov = np.empty((n, n))
+    for i, a in enumerate(times):
+        sx2, sv2, cxv = exact.linear_covariance(alpha, D, a)
+        for j in range(i, n):  # Cov(Y(b), Y(a)) = exp(A (b - a)) C(a)
+            cov[i, j] = cov[j, i] = (expm(A * (times[j] - a)) @ np.array([[sx2, cxv], [cxv, sv2]]))[0, 0]
+    law = multivariate_normal(cov=cov, abseps=1e-5, releps=1e-4, maxpts=20_000 * n, seed=0)
+    return 1.0 - law.cdf(np.full(n, level), lower_limit=np.full(n, -level))
+
+
+def test_elastic_linear_exact_bounds():
+    """r = 1 and linear damping: ``x = |y|`` with ``y`` the linear oscillator's Gaussian response, so that
+    ``P(max_k x(t_k) > l) <= P_f(t) <= int_0^t nu+(s) ds``: the maximum over times ``t_k <= t`` (exact, a
+    multivariate normal) below, Rice's expected number of upcrossings (exact transient joint density) above."""
+    alpha, D = 0.1, 0.01
+    model = jdpim.VibroImpactOscillator(alpha=alpha, gamma=0.0, r=1.0)
+    scene = jdpim.Scene(model, noise=jdpim.WhiteNoise(D=D), t_end=10.0, dt=0.01, save_at=SAVE_AT)
+    levels = np.array([0.3, 0.5, 0.7, 0.85])
+    settings = jdpim.PathIntegration(n_x=121, n_v=241, x_max=1.0, v_max=1.0, estimate_error=True)
+    fp = jdpim.first_passage(scene, "x", levels, settings)
+    p, err = np.asarray(fp.probability), np.asarray(fp.grid_error)
+    s, v = np.linspace(0.0, 10.0, 401)[1:], np.linspace(0.0, 3.0, 1501)
+    joint = [[exact.elastic_linear_joint_pdf([lv], v, alpha, D, t)[0] for t in s] for lv in levels]
+    nu = np.trapezoid(v * np.array(joint), v, axis=-1)  # (levels, times): upcrossing rate of each level
+    for i, t in enumerate(SAVE_AT):
+        k = s <= t
+        upper = np.trapezoid(nu[:, k], s[k], axis=1)
+        if t == 5.0:  # every eighth of a period of |y|: 13 times, tight (measured: within 2 % of P_f)
+            lower = np.array([_discrete_maximum(alpha, D, lv, np.arange(t, 0.0, -math.pi / 8)[::-1]) for lv in levels])
+        else:  # the tail at the latest time: weak, but absorption must exceed it clearly
+            lower = np.array([math.erfc(lv / math.sqrt(2 * exact.linear_covariance(alpha, D, t)[0])) for lv in levels])
+            assert np.all(p[i, :3] > 2 * lower[:3])
+        assert np.all(p[i] <= upper + err[i] + 1e-6)
+        assert np.all(p[i] >= lower - err[i] - 1e-4)
+    assert abs(p[0, -1]) < 1e-4  # x = 0.85 (4.2 sd at t = 5) is not reached by t = 5
+
+
+@pytest.mark.parametrize(
+    "settings, var, level, match",
+    [
+        (jdpim.PathIntegration(stationary=True), "x", 0.5, r"stationary=True\) cannot compute first-passage"),
+        (jdpim.PathIntegration(n_x=61, n_v=121, x_max=1.0, v_max=1.0), "x", 1.2, r"level \[1.2\] is not exceeded"),
+        (jdpim.PathIntegration(n_x=61, n_v=121, x_max=1.0, v_max=1.0), "x", 0.95, r"level \[0.95\] of 'x' lies within"),
+        (jdpim.PathIntegration(n_x=61, n_v=121, x_max=1.0, v_max=1.0), "v", 0.9, r"level \[0.9\] of 'v' lies within"),
+        (jdpim.PathIntegration(n_x=61, n_v=121, x_max=1.0, v_max=1.0), lambda s: s[0] * s[1], 2.0, "not exceeded"),
+    ],
+)
+def test_bad_input_fails_in_one_line(settings, var, level, match):
+    with pytest.raises(ValueError, match=match) as info:
+        jdpim.first_passage(reference_scene(), var, level, settings)
+    assert "\n" not in str(info.value)
+
+
+def test_derivatives_refused():
+    with pytest.raises(ValueError, match="no first-passage derivatives") as info:
+        jdpim.first_passage(reference_scene(), "x", 0.5, jdpim.PathIntegration(), wrt="alpha")
+    assert "\n" not in str(info.value)
+
+
+def test_several_degrees_of_freedom_refused():
+    scene = jdpim.Scene(jdpim.impact_damper(), noise=jdpim.WhiteNoise(D=0.03), t_end=1.0, dt=0.01)
+    with pytest.raises(ValueError, match="needs a one-degree-of-freedom scene.*MonteCarlo") as info:
+        jdpim.first_passage(scene, "x1", 0.5, jdpim.PathIntegration())
+    assert "\n" not in str(info.value)
