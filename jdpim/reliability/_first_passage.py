@@ -105,7 +105,9 @@ class FirstPassage:
         turned non-finite afterwards); a non-finite path that has not is lost."""
         maxima, bad = tracked[..., 0], tracked[..., 1] > 0
         hit = cls.passed(tracked, levels)
-        p = jnp.einsum("n,nsl->sl", weights, hit)
+        # over the total weight summed the same way: float32 rounding of a sum of many weights (1e-4 at 2e4
+        # paths) then cancels, and a level every path passes gives exactly 1
+        p = jnp.einsum("n,nsl->sl", weights, hit) / jnp.einsum("n,nsl->sl", weights, jnp.ones_like(hit))
         se = jnp.sqrt(jnp.einsum("n,nsl->sl", weights * weights, (hit - p[None]) ** 2)) if stderr else None
         lost = jnp.einsum("n,nsl->sl", weights, (1.0 - hit) * bad[..., None])
         return cls(times, jnp.asarray(levels, maxima.dtype), p, se, lost, method)
