@@ -51,8 +51,10 @@ from .methods._paths import NonFiniteWarning as NonFiniteWarning
 from .methods._paths import dpim_points as dpim_points
 from .methods._paths import simulate as simulate
 from .reliability import FirstPassage as FirstPassage
+from .reliability import ImpactStatistics as ImpactStatistics
 from .reliability import SubsetSimulation as SubsetSimulation
 from .reliability import first_passage as first_passage
+from .reliability import impact_statistics as impact_statistics
 from .results._density import RULES as RULES
 from .results._density import bandwidth as bandwidth
 from .results._density import histogram as histogram

@@ -224,12 +224,12 @@ def departure(model, e, tau0, normal, q_rest, n_iter=5):
     return jnp.where(q(tau0) > 0, tau0, jnp.where(in_first | (q(1.0) > 0), root, 1.0))
 
 
-def _resolve_one(model, rule: ImpactRule, h, y0, tau0, y1, last, e):
-    """Resolve the first impact of one path inside ``[tau0, 1]`` of the step, where ``y1`` violates a constraint.
+def first_crossing(model, rule: ImpactRule, h, y0, tau0, y1, last, e):
+    """The first constraint crossed in ``[tau0, 1]`` of a step of one path whose end ``y1`` violates one.
 
-    ``y0 = (q, v)`` at ``tau0``, ``y1`` at the step's end, ``last`` the constraint resolved last in this step
-    (-1 for none). Of the violated constraints the one crossed first is located and resolved (the others,
-    if still violated, by the next calls). Returns the new ``(y0, tau0, y1, last)``.
+    Returns ``(geometry, hit, j, theta, (q, v))``: the constraints' geometry, whether any is violated at the end,
+    the index of the one crossed first, the step fraction of its crossing (located on the cubic Hermite
+    interpolant of ``c_j``) and the state there (RK4 from ``y0`` at ``tau0``), before the impact.
     """
     (q0, v0), (q1, v1) = y0, y1
     geo = geometry(model.stacked_constraints(), q0.dtype)
@@ -244,9 +244,20 @@ def _resolve_one(model, rule: ImpactRule, h, y0, tau0, y1, last, e):
     span = jnp.where(crossing, (1.0 - tau0) * h, h)
     s_all = locate_crossing(rc0, dot(geo.normal, v0), rc1, dot(geo.normal, v1), span, rule.newton_iterations, on)
     j = jnp.zeros((), jnp.int32) if one else jnp.argmin(jnp.where(crossing, s_all, 2.0)).astype(jnp.int32)
-    normal, position, r, push, onto, unit, keep, _ = (_pick(a, j) for a in geo)
     theta = tau0 + _pick(s_all, j) * (1.0 - tau0)
-    qc, vc = rk4(model, q0, v0, e, h, tau0, theta)
+    return geo, hit, j, theta, rk4(model, q0, v0, e, h, tau0, theta)
+
+
+def _resolve_one(model, rule: ImpactRule, h, y0, tau0, y1, last, e):
+    """Resolve the first impact of one path inside ``[tau0, 1]`` of the step, where ``y1`` violates a constraint.
+
+    ``y0 = (q, v)`` at ``tau0``, ``y1`` at the step's end, ``last`` the constraint resolved last in this step
+    (-1 for none). Of the violated constraints the one crossed first is located and resolved (the others,
+    if still violated, by the next calls). Returns the new ``(y0, tau0, y1, last)``.
+    """
+    (q0, v0), (q1, v1) = y0, y1
+    geo, hit, j, theta, (qc, vc) = first_crossing(model, rule, h, y0, tau0, y1, last, e)
+    normal, position, r, push, onto, unit, keep, _ = (_pick(a, j) for a in geo)
     q_plus = dot(onto, qc) + position * unit  # on the plane c_j = 0
     v_plus = dot(keep, vc) + r * jnp.abs(dot(normal, vc)) * push  # generalised Newton law
     qr, vr = rk4(model, q_plus, v_plus, e, h, theta, 1.0)
@@ -513,31 +524,36 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
 class Tracker(abc.ABC):
     """A per-path quantity carried along every step and stored at the save slots like the states.
 
-    Hashable (it is a static argument of the jitted integration). ``init(model, q, v)`` gives its value at the
-    start (``dw``: zeros of the noise increment's shape), ``update(model, acc, q, v, q_new, v_new, dw)`` its
-    value after a step from ``(q, v)`` to
-    ``(q_new, v_new)`` (each ``(d,)``, one path) with the noise increment ``dw = h/6 (e_0 + 4 e_1/2 + e_1)``
-    (shape ``(m,)``, Simpson's rule of the forcing); both return shape ``(k,)``.
+    Hashable (it is a static argument of the jitted integration). ``init(model, q, v, e)`` gives its value at
+    the start (``e``: zero forcing nodes), ``update(model, acc, q, v, q_new, v_new, e, h)`` its value after a
+    step of length ``h`` from ``(q, v)`` to ``(q_new, v_new)`` (each ``(d,)``, one path) under the forcing
+    ``e``, the nodes at the step's start, middle and end (each ``(m,)``); both return shape ``(k,)``.
     """
 
     @abc.abstractmethod
-    def init(self, model, q, v, dw): ...
+    def init(self, model, q, v, e): ...
 
     @abc.abstractmethod
-    def update(self, model, acc, q, v, q_new, v_new, dw): ...
+    def update(self, model, acc, q, v, q_new, v_new, e, h): ...
+
+
+def increment(e, h):
+    """The noise increment of a step, ``dw = h/6 (e_0 + 4 e_1/2 + e_1)`` (Simpson's rule of the forcing)."""
+    return h / 6.0 * (e[0] + 4.0 * e[1] + e[2])
 
 
 @dataclasses.dataclass(frozen=True)
 class Sums(Tracker):
-    """Running sums from 0 of ``increment(model, q, v, dw) -> (k,)``, taken at the start of every step."""
+    """Running sums from 0 of ``increment(model, q, v, dw) -> (k,)``, taken at the start of every step with its
+    noise increment ``dw`` (:func:`increment`)."""
 
     increment: Callable
 
-    def init(self, model, q, v, dw):
-        return jnp.zeros_like(self.increment(model, q, v, dw))
+    def init(self, model, q, v, e):
+        return jnp.zeros_like(self.increment(model, q, v, e[0]))
 
-    def update(self, model, acc, q, v, q_new, v_new, dw):
-        return acc + self.increment(model, q, v, dw)
+    def update(self, model, acc, q, v, q_new, v_new, e, h):
+        return acc + self.increment(model, q, v, increment(e, h))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -556,13 +572,43 @@ class RunningMax(Tracker):
         value = jnp.reshape(self.quantity(state), ()).astype(q.dtype)
         return value, (~jnp.all(jnp.isfinite(state))).astype(q.dtype)
 
-    def init(self, model, q, v, dw):
+    def init(self, model, q, v, e):
         value, bad = self._value(q, v)
         return jnp.stack([jnp.where(jnp.isnan(value), -jnp.inf, value), bad])
 
-    def update(self, model, acc, q, v, q_new, v_new, dw):
+    def update(self, model, acc, q, v, q_new, v_new, e, h):
         value, bad = self._value(q_new, v_new)
         return jnp.stack([jnp.where(value > acc[0], value, acc[0]), jnp.maximum(acc[1], bad)])
+
+
+@dataclasses.dataclass(frozen=True)
+class Impacts(Tracker):
+    """Impacts along a path: ``(impacted so far, steps with an impact so far, impact speeds per bin so far)``,
+    shape ``(2 + K,)`` for ``K + 1`` edges (``K = 0`` without edges).
+
+    A step has an impact where its free RK4 step (the integrator's trial step) ends beyond a constraint and
+    the path did not start the step at rest on one. The impact speed is ``-n . v`` (normal to the constraint,
+    relative for a mass-mass contact) at the first crossing, located as the integrator locates it; speeds
+    outside ``edges`` are counted as impacts but in no bin. Several impacts in one step count once.
+    """
+
+    rule: ImpactRule
+    edges: tuple  # bin edges of the impact speed, increasing
+
+    def init(self, model, q, v, e):
+        return jnp.zeros((2 + max(len(self.edges) - 1, 0),), q.dtype)
+
+    def update(self, model, acc, q, v, q_new, v_new, e, h):
+        geo = geometry(model.stacked_constraints(), q.dtype)
+        resting = jnp.any(values(geo, q) == 0) & jnp.all(v == 0)
+        trial = rk4(model, q, v, e, h)
+        _, hit, j, _, (_, vc) = first_crossing(model, self.rule, h, (q, v), jnp.zeros((), q.dtype), trial, -1, e)
+        impact = hit & ~resting
+        speed = -dot(_pick(geo.normal, j), vc)
+        edges = jnp.asarray(self.edges, q.dtype).reshape(-1)
+        bins = impact & (speed >= edges[:-1]) & (speed < edges[1:]) if edges.size else jnp.zeros((0,), bool)
+        new = jnp.concatenate([jnp.stack([impact, impact]), bins]).astype(q.dtype)
+        return jnp.concatenate([jnp.maximum(acc[:1], new[:1]), acc[1:] + new[1:]])
 
 
 @dataclasses.dataclass(frozen=True)
@@ -571,14 +617,14 @@ class Stacked(Tracker):
 
     trackers: tuple
 
-    def init(self, model, q, v, dw):
-        return jnp.concatenate([t.init(model, q, v, dw) for t in self.trackers])
+    def init(self, model, q, v, e):
+        return jnp.concatenate([t.init(model, q, v, e) for t in self.trackers])
 
-    def update(self, model, acc, q, v, q_new, v_new, dw):
-        sizes = [jax.eval_shape(t.init, model, q, v, dw).shape[0] for t in self.trackers]
+    def update(self, model, acc, q, v, q_new, v_new, e, h):
+        sizes = [jax.eval_shape(t.init, model, q, v, e).shape[0] for t in self.trackers]
         parts = jnp.split(acc, list(itertools.accumulate(sizes))[:-1])
         return jnp.concatenate(
-            [t.update(model, a, q, v, q_new, v_new, dw) for t, a in zip(self.trackers, parts, strict=True)]
+            [t.update(model, a, q, v, q_new, v_new, e, h) for t, a in zip(self.trackers, parts, strict=True)]
         )
 
 
@@ -655,8 +701,7 @@ def integrate(
         return jnp.moveaxis(buf[:n_save], 0, 1)
 
     def update(acc, q, v, q_new, v_new, e, r):
-        dw = h / 6.0 * (e[0] + 4.0 * e[1] + e[2])
-        return track.update(path_model(r), acc, q, v, q_new, v_new, dw)
+        return track.update(path_model(r), acc, q, v, q_new, v_new, e, h)
 
     def body_tracked(carry, inputs):
         (q, v, buf, e_start), acc, acc_buf = carry
@@ -665,7 +710,8 @@ def integrate(
         acc_buf = jax.lax.dynamic_update_index_in_dim(acc_buf, acc, inputs[1], axis=0)
         return ((q_new, v_new, buf, e_next), acc, acc_buf), None
 
-    acc = jax.vmap(lambda q, v, r: track.init(path_model(r), q, v, jnp.zeros((m,), q.dtype)))(q0, v0, rand)
+    zero = (jnp.zeros((m,), q0.dtype),) * 3
+    acc = jax.vmap(lambda q, v, r: track.init(path_model(r), q, v, zero))(q0, v0, rand)
     acc_buf = jnp.zeros((n_save + 1, *acc.shape), q0.dtype).at[initial_slot].set(acc)
     init = ((q0, v0, buf, e_first), acc, acc_buf)
     ((_, _, buf, _), _, acc_buf), _ = jax.lax.scan(body_tracked, init, (jnp.arange(T), slots))

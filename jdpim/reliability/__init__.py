@@ -1,5 +1,7 @@
-"""Failure probabilities: the probability that a response quantity has exceeded a level in [0, t]."""
+"""Failure probabilities (first passage, subset simulation) and impact statistics."""
 
 from ._first_passage import FirstPassage as FirstPassage
 from ._first_passage import first_passage as first_passage
+from ._impacts import ImpactStatistics as ImpactStatistics
+from ._impacts import impact_statistics as impact_statistics
 from ._subset import SubsetSimulation as SubsetSimulation
