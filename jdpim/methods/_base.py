@@ -35,6 +35,14 @@ class AbstractMethod(abc.ABC):
             f"{type(self).__name__} does not compute first-passage probabilities; use jdpim.MonteCarlo or jdpim.DPIM"
         )
 
+    def replicate(self, scene: Scene, k: int) -> AbstractMethod:
+        """The ``k``-th of a set of independent, identically distributed randomisations of this method on
+        ``scene`` (for an error from the spread of replicates)."""
+        raise ValueError(
+            f"replicates apply to jdpim.DPIM (its point set has no error of its own); {type(self).__name__} "
+            "states its own error"
+        )
+
 
 def solve(scene: Scene, method: AbstractMethod):
     r"""Response densities of ``scene`` by ``method``: the one entry point for every method.

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 from .._points import PointSet
 from .._pytree import check_int, pytree_dataclass, static_field
+from .._replicates import randomised_points
 from .._scene import Scene
 from ..results._samples import Result
 from ._base import solve
@@ -60,6 +62,12 @@ class DPIM(SamplingMethod):
         elif not isinstance(self.points, PointSet):
             raise TypeError(f"points must be a jdpim.PointSet, got {type(self.points).__name__}")
         check_run_settings(self)
+
+    def replicate(self, scene: Scene, k: int) -> DPIM:
+        """This method with the randomised point set of seed ``k`` (:func:`jdpim.randomised_points`) of the
+        same size: replicates ``k = 0, 1, ...`` are independent and identically distributed."""
+        n = self.n_points if self.points is None else self.points.theta.shape[0]
+        return dataclasses.replace(self, points=randomised_points(scene.input_distributions(), n, k))
 
     def inputs(self, scene: Scene) -> tuple:
         return dpim_inputs(scene, self.n_points, points=self.points, chunk_size=self.chunk_size)

@@ -18,6 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._models import AbstractOscillator
+from .._scene import with_parameters
 from ..methods._path_integration import (
     PathIntegration,
     PathIntegrationWarning,
@@ -50,34 +51,66 @@ def absorbing_first_passage(scene, settings: PathIntegration, query: FirstPassag
             "freedom): use jdpim.MonteCarlo or jdpim.DPIM"
         )
     if query.wrt:
-        raise ValueError(
-            f"path integration gives no first-passage derivatives (wrt={query.wrt!r}): use jdpim.MonteCarlo or "
-            "jdpim.DPIM for derivatives"
-        )
+        _check_wrt(query)
     initial = settings.initial
     _validate(scene, settings, initial, stationary=False)
     settings, extents = resolved(scene, settings)
     _check_resolution(scene, settings, extents, point_start=initial is None)
-    probability, defect, leak = _probability(scene, settings, extents, query, "")
+    probability, defect, leak, keep = _probability(scene, settings, extents, query, "")
     grid_error = None
     if settings.estimate_error:
         coarse = _coarser(scene, settings, False, initial)
-        p_coarse, _, _ = _probability(scene, coarse, extents, query, " (the coarse grid of estimate_error=True)")
+        p_coarse, *_ = _probability(scene, coarse, extents, query, " (the coarse grid of estimate_error=True)")
         grid_error = jax.lax.stop_gradient(jnp.abs(probability - p_coarse))
     _report(probability, defect, leak, settings)
     levels = jnp.asarray(query.levels, probability.dtype)
     lost = jnp.zeros_like(probability)  # a non-finite density makes its probabilities NaN (and warns) instead
-    return FirstPassage(scene.save_at, levels, probability, None, lost, settings.name, grid_error=grid_error)
+    derivative = _derivative(scene, settings, extents, query, keep) if query.wrt else None
+    return FirstPassage(
+        scene.save_at, levels, probability, None, lost, settings.name, derivative, grid_error=grid_error
+    )
+
+
+def _check_wrt(query: FirstPassageQuery) -> None:
+    if query.estimator is not None:
+        raise ValueError(
+            f"estimator is for the sampling methods; path integration differentiates by forward-mode AD, got "
+            f"{query.estimator!r}"
+        )
+    if "barrier" in query.wrt:
+        raise ValueError(
+            "path integration cannot differentiate first passage with respect to the barrier (its grid starts at "
+            "the barrier and is static): use jdpim.MonteCarlo with jdpim.CentralDifference()"
+        )
+
+
+def _derivative(scene, settings: PathIntegration, extents, query: FirstPassageQuery, keep) -> dict:
+    """``{name: dP/dname (S, L)}`` by ``jax.jacfwd`` through the absorbed steps, with the grid, the order of the
+    weights and the absorbed fractions ``keep`` held at the nominal parameters."""
+    from ..sensitivities._path_integration import _check_noise_resolution, _check_start
+
+    _check_start(min(scene.save_at), settings)
+    if "D" in query.wrt:
+        grid = make_grid(scene.model, settings.n_x, settings.n_v, *extents, scene.float_dtype)
+        _check_noise_resolution(scene, settings, grid)
+
+    def probability(values):
+        survival, _, _ = _survival(with_parameters(scene, values), settings, extents, settings.initial, keep)
+        return 1.0 - survival.T
+
+    values = {n: jnp.asarray(v, scene.float_dtype) for n, v in query.values.items()}
+    return jax.jacfwd(probability)(values)
 
 
 def _probability(scene, settings: PathIntegration, extents, query: FirstPassageQuery, which: str):
-    """``(probability, defect, leak)``, each ``(S, L)``, on the grid of ``settings``."""
+    """``(probability, defect, leak, keep)`` on the grid of ``settings``: each ``(S, L)``, and the absorbed
+    fractions of :func:`_keep`."""
     grid = make_grid(scene.model, settings.n_x, settings.n_v, *extents, scene.float_dtype)
     levels = jnp.asarray(query.levels, scene.float_dtype)
     keep, node_max = _keep(query.quantity, grid.x, grid.v, levels)
     _check_levels(scene, settings, query, grid, float(node_max), which)
     survival, defect, leak = _survival(scene, settings, extents, settings.initial, keep)
-    return 1.0 - survival.T, defect.T, leak.T
+    return 1.0 - survival.T, defect.T, leak.T, keep
 
 
 @functools.partial(jax.jit, static_argnames=("quantity",))

@@ -16,7 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._pytree import concrete, pytree_dataclass, static_field
+from .._pytree import check_int, concrete, pytree_dataclass, static_field
 from .._scene import Scene, parameter_value, saved_index, static_times
 from ..methods._base import AbstractMethod
 from ..methods._paths import NonFiniteWarning
@@ -42,6 +42,7 @@ class FirstPassageQuery:
     wrt: tuple = ()  # parameter names to differentiate with respect to
     values: dict = dataclasses.field(default_factory=dict)  # their nominal values (floats)
     estimators: dict = dataclasses.field(default_factory=dict)  # name -> estimator
+    estimator: Any = None  # the one the user gave (None: each method's default)
 
 
 @pytree_dataclass
@@ -62,10 +63,14 @@ class FirstPassage:
             as passed).
         method: the method's name.
         derivative: ``{name: (S, L) array}``, ``dP/dtheta`` for each parameter of ``wrt`` (``None`` without).
-        derivative_stderr: ``{name: (S, L) array}``, their sampling standard errors (``None`` for DPIM).
+        derivative_stderr: ``{name: (S, L) array}``, their sampling standard errors (``None`` for DPIM and
+            path integration).
         grid_error: shape ``(S, L)``, path integration with ``estimate_error=True``: ``|probability - the same on
             a grid twice as coarse|``, the estimated discretisation error; else ``None``.
         n_evaluations: responses computed (paths integrated) by subset simulation; ``None`` otherwise.
+        n_replicates: the number ``R`` of DPIM replicates averaged (``first_passage(..., replicates=R)``): then
+            ``probability`` and ``derivative`` are their means and ``stderr``, ``derivative_stderr`` the standard
+            errors of the means (``std / sqrt(R)``); ``None`` otherwise.
 
     A pytree (leaves: ``levels``, ``probability``, ``stderr``, ``lost_mass``, the derivatives and
     ``grid_error``): it passes through ``jax.jit``.
@@ -81,6 +86,7 @@ class FirstPassage:
     derivative_stderr: Any = None
     grid_error: Any = None
     n_evaluations: int | None = static_field(default=None)
+    n_replicates: int | None = static_field(default=None)
 
     def __post_init__(self):
         object.__setattr__(self, "times", static_times(self.times))
@@ -90,6 +96,23 @@ class FirstPassage:
         ``stderr`` is ``None`` where the method has none."""
         i = len(self.times) - 1 if t is None else saved_index(self.times, t)
         return self.probability[i], None if self.stderr is None else self.stderr[i]
+
+    @classmethod
+    def mean_of(cls, runs: list[FirstPassage]) -> FirstPassage:
+        """The mean of ``R >= 2`` independent replicates, with the standard errors of the means."""
+        first, r = runs[0], len(runs)
+
+        def mean_and_stderr(values):
+            stack = jnp.stack(values)
+            return jnp.mean(stack, axis=0), jnp.std(stack, axis=0, ddof=1) / np.sqrt(r)
+
+        p, se = mean_and_stderr([run.probability for run in runs])
+        lost, _ = mean_and_stderr([run.lost_mass for run in runs])
+        derivative = derivative_stderr = None
+        if first.derivative is not None:
+            pairs = {n: mean_and_stderr([run.derivative[n] for run in runs]) for n in first.derivative}
+            derivative, derivative_stderr = ({n: pair[i] for n, pair in pairs.items()} for i in (0, 1))
+        return cls(first.times, first.levels, p, se, lost, first.method, derivative, derivative_stderr, n_replicates=r)
 
     @staticmethod
     def passed(tracked, levels):
@@ -184,7 +207,9 @@ def _derivatives(scene: Scene, wrt, estimator) -> tuple:
     return tuple(values), values, estimators
 
 
-def first_passage(scene: Scene, var, level, method: AbstractMethod, *, wrt=(), estimator=None) -> FirstPassage:
+def first_passage(
+    scene: Scene, var, level, method: AbstractMethod, *, wrt=(), estimator=None, replicates: int | None = None
+) -> FirstPassage:
     r"""The probability that ``var`` has exceeded ``level`` at some time in ``[0, t]``, for every saved ``t``.
 
     ``P_f(t) = P(max_{0 <= s <= t} q(s) > level)``, the first-passage (failure) probability of the safe domain
@@ -206,7 +231,13 @@ def first_passage(scene: Scene, var, level, method: AbstractMethod, *, wrt=(), e
             drift parameters of one-degree-of-freedom scenes (``E[1 (S - Sbar)]`` with the score ``S`` of the
             whole history; no step) and ``jdpim.CentralDifference()`` otherwise (``r``, ``D``, matrices,
             constraints: two runs with common random numbers, the same seed or point set). Standard errors
-            (Monte Carlo) come from the per-path contributions.
+            (Monte Carlo) come from the per-path contributions. Path integration takes no estimator: it
+            differentiates its absorbed steps by ``jax.jacfwd`` (every parameter but the barrier), holding its
+            grid fixed.
+        replicates: DPIM only: ``R >= 2`` runs on independent randomised point sets of the method's size
+            (:func:`jdpim.randomised_points`, seeds ``0 .. R - 1``), averaged, with the standard errors of the
+            means from their spread (``R`` times the cost of one run). ``None``: one run on the method's points,
+            without an error estimate.
 
     Returns:
         :class:`FirstPassage`: ``probability`` and ``stderr`` of shape ``(S, L)``.
@@ -222,8 +253,14 @@ def first_passage(scene: Scene, var, level, method: AbstractMethod, *, wrt=(), e
         raise TypeError(f"scene must be a jdpim.Scene, got {type(scene).__name__}")
     if not isinstance(method, AbstractMethod):
         raise TypeError(f"method must be a jdpim method object, e.g. jdpim.MonteCarlo(), got {method!r}")
-    query = FirstPassageQuery(_quantity(scene, var), _levels(scene, var, level), *_derivatives(scene, wrt, estimator))
-    out = method.first_passage(scene, query)
+    query = FirstPassageQuery(
+        _quantity(scene, var), _levels(scene, var, level), *_derivatives(scene, wrt, estimator), estimator
+    )
+    if replicates is None:
+        out = method.first_passage(scene, query)
+    else:
+        replicates = check_int("replicates", replicates, low=2)
+        out = FirstPassage.mean_of([method.replicate(scene, k).first_passage(scene, query) for k in range(replicates)])
     lost = concrete(out.lost_mass)
     if lost is not None and lost.any():
         warnings.warn(
