@@ -1,4 +1,4 @@
-"""``python -m jdpim.bench {accuracy,budget,speed,throughput,sensitivity,mdof,forcing} ...``: benchmarks."""
+"""``python -m jdpim.bench {accuracy,budget,speed,throughput,sensitivity,mdof,forcing,processes} ...``: benchmarks."""
 
 from __future__ import annotations
 
@@ -46,6 +46,11 @@ def main(argv=None, *, from_program=None) -> int:
     )
     forcing.add_argument("--quick", action="store_true", help="t_end 10 s, 2e4 paths (else 20 s, 1e5)")
     forcing.add_argument("--out", type=pathlib.Path, default=pathlib.Path("jdpim_out/bench"))
+    procs = sub.add_parser("processes", help="one process against one per core (jax.distributed), same host")
+    procs.add_argument(
+        "--quick", action="store_true", help="t_end 50 s, 2e4 paths, 4000 points (else 100 s, 4e4, 8000)"
+    )
+    procs.add_argument("--out", type=pathlib.Path, default=pathlib.Path("jdpim_out/bench"))
     thr = sub.add_parser("throughput", help="path-steps per second against batch and chunk size, all devices")
     thr.add_argument("--sizes", type=_positive_int, nargs="+", default=[1000, 10_000], help="numbers of paths")
     thr.add_argument(
@@ -92,6 +97,11 @@ def main(argv=None, *, from_program=None) -> int:
         from .forcing import run_forcing
 
         files = run_forcing(args.out, quick=args.quick, log=lambda s: print(s, flush=True))
+    elif args.command == "processes":
+        from .processes import run_processes
+
+        sizes = {"t_end": 50.0, "n_samples": 20_000, "n_points": 4000} if args.quick else {}
+        files = run_processes(args.out, **sizes, log=lambda s: print(s, flush=True))
     elif args.command == "throughput":
         from .throughput import run_throughput
 

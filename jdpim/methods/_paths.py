@@ -296,12 +296,48 @@ def run_paths(
         track: a quantity carried along every step (a :class:`jdpim._integrate.Tracker`); then the pair
             ``(states, tracked)`` is returned.
 
+    Under ``jax.distributed`` (more than one process) the rows are split over the processes and the states
+    gathered on every one (:func:`_across_processes`).
+
     Under a JAX transformation (traced scene or rows) this is :func:`simulate`, unsharded and unstreamed;
     differentiating paths that start at rest on the barrier then warns (``SensitivityWarning``: pathwise
     derivatives through that grazing impact are biased).
     """
     if _is_traced((scene, rows)):
         return simulate(guard(scene), rows, kind=kind, chunk_size=chunk_size, track=track)
+    local = functools.partial(
+        _run_local,
+        kind=kind,
+        chunk_size=chunk_size,
+        block_size=block_size,
+        devices=devices,
+        progress=progress,
+        label=label,
+        track=track,
+    )
+    return _across_processes(scene, rows, local, devices) if jax.process_count() > 1 else local(scene, rows)
+
+
+def _across_processes(scene: Scene, rows, local, devices):
+    """``local(scene, rows)`` with the rows split over the processes of ``jax.distributed``.
+
+    Each process integrates an equal, contiguous share of the rows on its own devices (the last share padded
+    with copies of the first row), and the shares are gathered on every process, so that densities, moments,
+    error bars and estimators are then computed from the same states everywhere. A path is a pure function of
+    its row: the states are those of one process.
+    """
+    from jax.experimental import multihost_utils
+
+    n, count, index = rows.shape[0], jax.process_count(), jax.process_index()
+    share = -(-n // count)
+    mine = pad_rows(rows, share * count - n)[index * share : (index + 1) * share]
+    out = jax.tree_util.tree_map(np.asarray, local(scene, mine))
+    gathered = multihost_utils.process_allgather(out, tiled=True)
+    return jax.tree_util.tree_map(lambda a: jax.device_put(np.asarray(a)[:n], _devices(devices)[0]), gathered)
+
+
+def _run_local(scene: Scene, rows, *, kind, chunk_size, block_size, devices, progress, label, track):
+    """:func:`run_paths` on this process's devices."""
     devices = _devices(devices)
     n = rows.shape[0]
     chunk_size = balanced_chunk(n, chunk_size, len(devices))

@@ -1,0 +1,133 @@
+"""Monte Carlo and DPIM over several processes (``jax.distributed``) against one process, on this host.
+
+Scene: the reference oscillator (alpha = gamma = 0.03, r = 0.98, D = 0.03) from rest to ``t_end``. Each
+configuration starts its processes afresh (``python -m jdpim.bench.processes``, one coordinator on
+``127.0.0.1``): one process on one CPU device, one process on one device per core, and one process per core
+on one device each. Every process runs the job once to compile, then ``repeats`` times after a barrier
+(``multihost_utils.sync_global_devices``); the time is process 0's median, from the call to the ``x`` density
+of the last saved time on a grid (the states gathered on every process included). The densities of every
+configuration are compared with the first, bit for bit.
+"""
+
+from __future__ import annotations
+
+import json
+import pathlib
+import socket
+import subprocess
+import sys
+import time
+
+import numpy as np
+
+from .._cpu import usable_cores
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _worker(argv) -> None:
+    """One process: ``index count port t_end n_samples n_points repeats out`` (``count`` 1: no coordinator)."""
+    import jax
+
+    index, count, port = int(argv[0]), int(argv[1]), argv[2]
+    t_end, n_samples, n_points, repeats, out = float(argv[3]), int(argv[4]), int(argv[5]), int(argv[6]), argv[7]
+    if count > 1:
+        jax.distributed.initialize(f"127.0.0.1:{port}", num_processes=count, process_id=index)
+    from jax.experimental import multihost_utils
+
+    import jdpim
+
+    scene = jdpim.Scene(jdpim.VibroImpactOscillator(), noise=jdpim.WhiteNoise(D=0.03), t_end=t_end, dt=0.01)
+    grid = np.linspace(0.0, 2.0, 201)
+    rows = {}
+    for name, method in (
+        ("monte_carlo", jdpim.MonteCarlo(n_samples=n_samples, seed=0, progress=False)),
+        ("dpim", jdpim.DPIM(n_points=n_points, progress=False)),
+    ):
+
+        def job(method=method):
+            return np.asarray(jdpim.solve(scene, method).pdf("x", grid, t_end))
+
+        job()
+        times = []
+        for _ in range(repeats):
+            if count > 1:
+                multihost_utils.sync_global_devices("jdpim.bench.processes")
+            t0 = time.perf_counter()
+            pdf = job()
+            times.append(time.perf_counter() - t0)
+        rows[name] = {"median_s": float(np.median(times)), "pdf": pdf.tolist()}
+    if index == 0:
+        pathlib.Path(out).write_text(json.dumps({"devices": len(jax.local_devices()), "rows": rows}))
+
+
+def _launch(processes: int, devices: int, args: tuple, out: pathlib.Path) -> dict:
+    port = _free_port()
+    env = {**__import__("os").environ, "JAX_NUM_CPU_DEVICES": str(devices), "JAX_PLATFORMS": "cpu"}
+    procs = [
+        subprocess.Popen(
+            [sys.executable, "-m", "jdpim.bench.processes", str(i), str(processes), str(port), *map(str, args), out],
+            env=env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+        )
+        for i in range(processes)
+    ]
+    logs = [p.communicate()[0] for p in procs]
+    if any(p.returncode for p in procs):
+        raise RuntimeError(f"a benchmark process failed:\n{logs}")
+    return json.loads(out.read_text())
+
+
+def run_processes(
+    out: pathlib.Path,
+    *,
+    t_end: float = 100.0,
+    n_samples: int = 40_000,
+    n_points: int = 8000,
+    repeats: int = 3,
+    log=print,
+) -> list[str]:
+    """The table (``processes.json``, ``processes.md``) for 1 and ``usable_cores()`` processes and devices."""
+    cores = usable_cores()
+    configs = [(1, 1), (1, cores), (cores, 1)] if cores > 1 else [(1, 1)]
+    out.mkdir(parents=True, exist_ok=True)
+    results = []
+    for processes, devices in configs:
+        got = _launch(processes, devices, (t_end, n_samples, n_points, repeats), out / "processes_worker.json")
+        results.append((processes, devices, got["rows"]))
+    (out / "processes_worker.json").unlink()
+    base = results[0][2]
+    rows = []
+    for processes, devices, got in results:
+        row = {"processes": processes, "devices_per_process": devices}
+        for name, n in (("monte_carlo", n_samples), ("dpim", n_points)):
+            t = got[name]["median_s"]
+            row[f"{name}_s"] = round(t, 3)
+            row[f"{name}_speedup"] = round(base[name]["median_s"] / t, 2)
+            row[f"{name}_path_steps_per_s"] = f"{n * t_end / 0.01 / t:.2e}"
+            row[f"{name}_same_pdf"] = got[name]["pdf"] == base[name]["pdf"]
+        rows.append(row)
+        log(str(row))
+    summary = {"t_end": t_end, "n_samples": n_samples, "n_points": n_points, "repeats": repeats, "rows": rows}
+    (out / "processes.json").write_text(json.dumps(summary, indent=1))
+    keys = list(rows[0])
+    lines = [
+        f"Reference scene to t = {t_end:g} s (dt = 0.01, float32): Monte Carlo {n_samples} paths, DPIM {n_points} "
+        f"points; median of {repeats} warm runs including the x density; speed-up against 1 process on 1 device",
+        "",
+        "| " + " | ".join(keys) + " |",
+        "|" + "---|" * len(keys),
+    ]
+    lines += ["| " + " | ".join(str(r[k]) for k in keys) + " |" for r in rows]
+    (out / "processes.md").write_text("\n".join(lines) + "\n")
+    return ["processes.json", "processes.md"]
+
+
+if __name__ == "__main__":
+    _worker(sys.argv[1:])
