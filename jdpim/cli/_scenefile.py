@@ -18,7 +18,10 @@ r"""Scene files: a computation described in TOML, checked key by key before anyt
     n_points = 1000
 
 Optional tables: ``[initial]`` (``x0``, ``v0``), ``[output]`` (``densities``: which of ``"x"``, ``"v"``,
-``"joint"`` are stored, ``states``: whether the raw states are stored too, ``figures``, ``n_grid``).
+``"joint"`` are stored, ``states``: whether the raw states are stored too, ``figures``, ``n_grid``),
+``[reliability]`` (``quantity``: a coordinate, e.g. ``"x"``, or its magnitude ``"|x|"``; ``levels``: a number
+or an array of them): first-passage probabilities ``P(max_{s <= t} quantity(s) > level)`` by every method at
+every saved time (``jdpim.first_passage``).
 
 ``kind = "mdof"`` is ``jdpim.MDOFOscillator``, ``M q'' + C q' + K q = B xi(t)`` with constraints
 ``normal . q >= position``:
@@ -99,10 +102,35 @@ class Outputs:
 
 
 @dataclasses.dataclass(frozen=True)
+class Magnitude:
+    """``|state[index]|``, the two-sided quantity ``"|name|"`` of ``[reliability]``: a function of the state
+    ``(n_state,)`` that is hashable, so ``jdpim.first_passage`` traces it as a static argument."""
+
+    name: str
+    index: int
+
+    def __call__(self, state):
+        return abs(state[self.index])
+
+    def __str__(self) -> str:
+        return f"|{self.name}|"
+
+
+@dataclasses.dataclass(frozen=True)
+class Reliability:
+    """``[reliability]``: the first passage of ``quantity`` (a coordinate's name or a :class:`Magnitude`; ``str``
+    gives its spelling in the file) above each of ``levels`` (``L`` floats)."""
+
+    quantity: str | Magnitude
+    levels: tuple[float, ...]
+
+
+@dataclasses.dataclass(frozen=True)
 class SceneFile:
     """A parsed scene file: the physics (``scene``), the methods to run and the outputs to store.
 
-    ``table`` is the file's content with every default filled in (written to the run's metadata).
+    ``table`` is the file's content with every default filled in (written to the run's metadata);
+    ``reliability`` is ``None`` without a ``[reliability]`` table.
     """
 
     path: pathlib.Path
@@ -110,6 +138,7 @@ class SceneFile:
     methods: tuple[Method, ...]
     outputs: Outputs
     table: dict
+    reliability: Reliability | None = None
 
 
 _MODEL_KEYS = {
@@ -124,6 +153,7 @@ _SCHEMA = {
     "initial": {"x0", "v0"},
     "method": {"name", "n_points", "n_samples", "seed"},
     "output": {"densities", "joint", "states", "figures", "n_grid"},
+    "reliability": {"quantity", "levels"},
 }
 _REQUIRED = ("model", "noise", "time", "method")
 
@@ -362,6 +392,41 @@ def _intensity(noise: _Reader, n_sources: int):
     return D
 
 
+def _reliability(r: _Reader, scene) -> Reliability:
+    """``[reliability]`` of ``scene``: a coordinate of its model or ``"|c|"``, and levels above the coordinate's
+    barrier (the library's check, ``jdpim.first_passage``'s message under the key) or, for a magnitude, above 0."""
+    from jdpim.reliability._first_passage import _levels
+
+    coords = scene.model.coordinates
+    text = r.table.get("quantity")
+    if text is None:
+        r.fail("quantity", "is required")
+    two_sided = isinstance(text, str) and len(text) > 2 and text[0] == text[-1] == "|"
+    name = text[1:-1] if two_sided else text
+    if not isinstance(text, str) or name not in coords:
+        r.fail(
+            "quantity",
+            f'must be a coordinate of the model, one of {list(coords)}, or its magnitude ("|{coords[0]}|"), '
+            f"got {_toml_type(text)} {text!r}",
+        )
+    above_zero = {"low": 0.0, "low_open": True} if two_sided else {}  # |c| >= 0 exceeds a level <= 0 at once
+    value = r.table.get("levels")
+    if value is None:
+        r.fail("levels", "is required")
+    if isinstance(value, list) and value:
+        levels = tuple(r.real(f"levels[{i}]", a, **above_zero) for i, a in enumerate(value))
+    elif isinstance(value, numbers.Real) and not isinstance(value, bool):
+        levels = (r.real("levels", value, **above_zero),)
+    else:
+        r.fail("levels", f"must be a number or a non-empty array of numbers, got {_toml_type(value)} {value!r}")
+    if not two_sided:
+        try:
+            _levels(scene, name, levels)
+        except ValueError as err:
+            r.fail("levels", str(err).splitlines()[0])
+    return Reliability(Magnitude(name, coords.index(name)) if two_sided else name, levels)
+
+
 def load(path) -> SceneFile:
     """Read and check a scene file (see the module docstring for its keys).
 
@@ -444,6 +509,7 @@ def load(path) -> SceneFile:
         scene = jdpim.Scene(model, noise=noise, x0=x0, v0=v0, t_end=t_end, dt=dt, save_at=save_at)
     except (ValueError, TypeError) as err:
         raise _library_error(path, err) from None
+    reliability = _reliability(tables["reliability"], scene) if "reliability" in raw else None
     table = {
         "model": model_table,
         "noise": {"D": D},
@@ -462,4 +528,6 @@ def load(path) -> SceneFile:
             "n_grid": outputs.n_grid,
         },
     }
-    return SceneFile(path, scene, methods, outputs, table)
+    if reliability is not None:
+        table["reliability"] = {"quantity": str(reliability.quantity), "levels": list(reliability.levels)}
+    return SceneFile(path, scene, methods, outputs, table, reliability)

@@ -1,7 +1,9 @@
-"""Run a scene file: the named methods, the densities it asks for, stored as ``.npz`` + JSON + CSV + figures."""
+"""Run a scene file: the named methods, the densities it asks for, stored as ``.npz`` + JSON + CSV + figures;
+with a ``[reliability]`` table also first-passage probabilities (``.npz`` + Markdown)."""
 
 from __future__ import annotations
 
+import functools
 import pathlib
 
 import numpy as np
@@ -19,13 +21,42 @@ TIMING_COLUMNS = (
 )
 
 
+def first_passage(sf: SceneFile, *, progress: bool = True, log=print) -> tuple[dict, str, dict]:
+    """``jdpim.first_passage`` of ``sf.reliability`` by every method of ``sf`` at the scene's saved times.
+
+    Returns ``(arrays, tables, wall_s)``: ``first_passage_levels`` ``(L,)`` and, per method,
+    ``first_passage_<method>_probability``, ``_lost_mass`` and (Monte Carlo) ``_stderr``, each ``(S, L)``;
+    a Markdown table per method (rows: saved times, columns: levels); the wall time per method in s.
+    """
+    import jdpim
+
+    rel, scene = sf.reliability, sf.scene
+    arrays, tables, wall = {"first_passage_levels": np.asarray(rel.levels)}, [], {}
+    title = f"P(max over [0, t] of {rel.quantity} > level)"
+    for m in sf.methods:
+        fp, wall_s, _ = report.timed(
+            functools.partial(jdpim.first_passage, scene, rel.quantity, rel.levels, m.method(progress=progress)),
+            log,
+            f"{m.name}: first passage of {rel.quantity}, {len(rel.levels)} level(s)",
+        )
+        wall[m.name] = round(wall_s, 3)
+        key = f"first_passage_{m.name}"
+        arrays[f"{key}_probability"], arrays[f"{key}_lost_mass"] = np.asarray(fp.probability), np.asarray(fp.lost_mass)
+        if fp.stderr is not None:
+            arrays[f"{key}_stderr"] = np.asarray(fp.stderr)
+        table = report.probability_table(scene.save_at, rel.levels, fp.probability, fp.stderr, str(rel.quantity))
+        tables.append(f"{report.NAME[m.name]} ({m.n_paths} paths): {title}\n\n{table}")
+    return arrays, "\n\n".join(tables), wall
+
+
 def run(sf: SceneFile, out: pathlib.Path, *, progress: bool = True, log=print) -> dict:
     """Run every method of ``sf``, write ``<stem>.npz``, ``<stem>.json``, ``<stem>_timing.csv`` and figures to ``out``.
 
     The marginals of ``sf.outputs.marginals`` and the joint densities of the pairs ``sf.outputs.joint`` are
     taken at every saved time on common grids (``report.grids``; a joint density on every second node).
-    Returns the metadata also written to the JSON file (parameters, versions, wall time per method in s,
-    compilation included, array shapes, file names).
+    With ``sf.reliability``, the :func:`first_passage` arrays go to the same ``.npz`` and its tables to
+    ``<stem>_first_passage.md`` (and the log). Returns the metadata also written to the JSON file (parameters,
+    versions, wall time per method in s, compilation included, array shapes, file names).
     """
     scene, stem, outputs = sf.scene, sf.path.stem, sf.outputs
     out.mkdir(parents=True, exist_ok=True)
@@ -53,6 +84,12 @@ def run(sf: SceneFile, out: pathlib.Path, *, progress: bool = True, log=print) -
             arrays[f"{name}_states"], arrays[f"{name}_weights"] = np.asarray(res.states), np.asarray(res.weights)
         arrays[f"{name}_nonfinite"] = np.asarray(res.n_nonfinite())
     files = [f"{stem}.npz", f"{stem}_timing.csv"]
+    if sf.reliability is not None:
+        fp_arrays, fp_tables, fp_wall = first_passage(sf, progress=progress, log=log)
+        arrays |= fp_arrays
+        log(fp_tables)
+        files.append(f"{stem}_first_passage.md")
+        (out / files[-1]).write_text(f"# {sf.path.name}: first passage\n\n{fp_tables}\n")
     np.savez_compressed(out / files[0], **arrays)
     report.write_csv(
         out / files[1], rows, f"{sf.path.name}: wall and CPU time of jdpim.solve in s, compilation included"
@@ -65,6 +102,7 @@ def run(sf: SceneFile, out: pathlib.Path, *, progress: bool = True, log=print) -
         "parameters": sf.table,
         "versions": report.versions(),
         "wall_time_s": timings,
+        **({} if sf.reliability is None else {"first_passage_wall_time_s": fp_wall}),
         "arrays": {k: list(v.shape) for k, v in arrays.items()},
         "files": files + [f"{stem}.json"],
     }

@@ -217,6 +217,20 @@ def markdown(rows: list[dict], columns) -> str:
     return "\n".join(lines)
 
 
+def probability_table(times, levels, probability, stderr=None, quantity: str = "q") -> str:
+    """A Markdown table of first-passage probabilities ``(S, L)``: a row per saved time (s), a column per level,
+    ``p ± se`` where ``stderr`` ``(S, L)`` is given, else ``p``."""
+    columns = [("t (s)", "{t:g}", "r")] + [(f"P({quantity} > {a:g})", f"{{p{j}}}", "r") for j, a in enumerate(levels)]
+    p = np.asarray(probability)
+    se = None if stderr is None else np.asarray(stderr)
+
+    def cell(i, j):
+        return f"{p[i, j]:.3g}" if se is None else f"{p[i, j]:.3g} ± {se[i, j]:.2g}"
+
+    rows = [{"t": t, **{f"p{j}": cell(i, j) for j in range(len(levels))}} for i, t in enumerate(times)]
+    return markdown(rows, columns)
+
+
 def write_csv(path: pathlib.Path, rows: list[dict], comment: str) -> None:
     """``rows`` as CSV, after a ``# comment`` line (the settings they were measured with)."""
     with path.open("w", newline="") as fh:
