@@ -1,10 +1,13 @@
-"""Speed of the reference scene: jdpim's pipelines against a plain vectorised NumPy RK4 Monte Carlo.
+"""Speed of the reference scene: jdpim's pipelines against plain vectorised NumPy and plain JAX RK4 Monte Carlo.
 
 The baseline (:func:`numpy_mcs`) is the fastest plain NumPy we could write for the scene: in-place
 ufuncs on contiguous ``(n_paths,)`` arrays, half-step Gaussian forcing from ``Generator(SFC64)``, the
 mirror rule at the barrier, timed at 1e3, 1e4 and 1e5 paths per batch in float32 and float64 in the
 same run; the best batch of each dtype is the baseline of jdpim's rows of that dtype (``x_numpy``).
 jdpim's Monte Carlo is timed with its own mirror rule too (``ImpactRule(method="mirror")``), like for like.
+The plain JAX baseline (:func:`jax_mcs`) is the same scheme as one jitted ``lax.scan`` on one device, at the
+same batches (``x_jax``): what the library's machinery (located impacts, chunks, devices, saved times,
+non-finite accounting) costs or gains over the few lines a JAX user would write.
 
 Reference scene: alpha = gamma = 0.03, r = 0.98, D = 0.03, t_end = 200 s, dt = 0.01 s (2e4 steps).
 Protocol (``timing.timed``): AOT compile (timed apart), one warm-up run, ``repeats`` warm runs, median.
@@ -29,6 +32,7 @@ import statistics
 import time
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from .._excitation import synthesize
@@ -192,6 +196,66 @@ def numpy_mcs(
     return x, v
 
 
+@functools.partial(jax.jit, static_argnames=("n_paths", "n_steps", "dtype"))
+def jax_mcs(n_paths: int, n_steps: int, key, *, dtype: str = "float32", dt: float = DT):
+    """The plain JAX baseline: :func:`numpy_mcs` written as one jitted ``lax.scan`` over the steps.
+
+    What a JAX user writes for the scene without jdpim: ``(n_paths,)`` arrays, one ``jax.random.normal`` of
+    ``(2, n_paths)`` per step (the middle and end nodes; the key of step ``k`` is ``fold_in(key, k)``), the same
+    Nystrom RK4 and mirror rule (``jnp.where``). Returns ``(x, v)`` at the end, each ``(n_paths,)``.
+
+    Example:
+        >>> x, v = jax_mcs(100, 100, jax.random.key(0))
+        >>> x.shape, bool((x >= 0).all())
+        ((100,), True)
+    """
+    ty = np.dtype(dtype).type
+    h, scale = ty(dt), ty(np.sqrt(18.0 * D / (5.0 * dt)))
+
+    def acc(x, v, f):
+        return f - x - v * (ALPHA + GAMMA * v * v)
+
+    def step(carry, k):
+        x, v, f0 = carry
+        fm, f1 = scale * jax.random.normal(jax.random.fold_in(key, k), (2, n_paths), dtype)
+        k1 = acc(x, v, f0)
+        k2 = acc(x + h / 2 * v, v + h / 2 * k1, fm)
+        k3 = acc(x + h / 2 * (v + h / 2 * k1), v + h / 2 * k2, fm)
+        k4 = acc(x + h * (v + h / 2 * k2), v + h * k3, f1)
+        x = x + h * v + h * h / 6 * (k1 + k2 + k3)
+        v = v + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        return (jnp.abs(x), jnp.where(x < 0, -R * v, v), f1), None
+
+    zero = jnp.zeros(n_paths, dtype)
+    f0 = scale * jax.random.normal(jax.random.fold_in(key, n_steps), (n_paths,), dtype)
+    (x, v, _), _ = jax.lax.scan(step, (zero, zero, f0), jnp.arange(n_steps))
+    return x, v
+
+
+def jax_baseline(dtype: str, n_steps: int, *, log=print) -> list[dict]:
+    """Path-steps per second of :func:`jax_mcs` on one device for each batch in ``BASELINE_BATCHES``: compile
+    (timed apart), one warm-up run, 3 timed runs, median."""
+    rows = []
+    for n in BASELINE_BATCHES:
+        key = jax.random.key(0)
+        t0 = time.perf_counter()
+        compiled = jax_mcs.lower(n, n_steps, key, dtype=dtype).compile()
+        compile_s = time.perf_counter() - t0
+        median = _median_time(lambda compiled=compiled, key=key: jax.block_until_ready(compiled(key)), 3)
+        rows.append(
+            {
+                "dtype": dtype,
+                "n_paths": n,
+                "n_steps": n_steps,
+                "compile_s": round(compile_s, 2),
+                "median_s": round(median, 3),
+                "path_steps_per_s": float(f"{n * n_steps / median:.3g}"),
+            }
+        )
+        log(f"[speed]   plain jax {rows[-1]}")
+    return rows
+
+
 def numpy_baseline(dtype: str, n_steps: int, *, quick: bool, log=print) -> list[dict]:
     """Path-steps per second of :func:`numpy_mcs` for each batch in ``BASELINE_BATCHES``, over ``n_steps`` steps.
 
@@ -246,9 +310,13 @@ def run_speed(out: pathlib.Path, *, quick: bool = False, log=print) -> list[str]
     rows = []
     # one device (the protocol's rows, with the split), then every local device (what dpim and monte_carlo use)
     device_sets = [None] + ([jax.local_devices()] if jax.local_device_count() > 1 else [])
+    jax_rows, best_jax = [], {}
     for dtype in dtypes:
         if dtype == "float64":
             jax.config.update("jax_enable_x64", True)
+        log(f"[speed] plain JAX baseline {dtype} ...")
+        jax_rows += jax_baseline(dtype, n_steps // 10 if quick else n_steps, log=log)
+        best_jax[dtype] = max((r for r in jax_rows if r["dtype"] == dtype), key=lambda r: r["path_steps_per_s"])
         configs = [("dpim", 1000, "locate")] + [("monte_carlo", m, "locate") for m in mcs_sizes]
         configs.append(("monte_carlo", 10_000, "mirror"))
         for method, n, impacts in configs:
@@ -264,6 +332,7 @@ def run_speed(out: pathlib.Path, *, quick: bool = False, log=print) -> list[str]
                     row.update(split(scene, chunk, method, repeats, -(-n // inputs[2])))
                     row["densities_s"] = round(density_time(res, repeats), 4)
                 row["x_numpy"] = round(row["path_steps_per_s"] / best[dtype]["path_steps_per_s"], 2)
+                row["x_jax"] = round(row["path_steps_per_s"] / best_jax[dtype]["path_steps_per_s"], 2)
                 row["peak_rss_mib"] = round(_peak_mib())
                 row["n_nonfinite"] = int(np.max(np.asarray(res.n_nonfinite())))
                 rows.append(row)
@@ -271,6 +340,7 @@ def run_speed(out: pathlib.Path, *, quick: bool = False, log=print) -> list[str]
     info = {
         "scene": {"alpha": ALPHA, "gamma": GAMMA, "r": R, "D": D, "t_end": T_END, "dt": DT},
         "numpy_baseline": {"best": best, "batches": baseline_rows},
+        "jax_baseline": {"best": best_jax, "batches": jax_rows},
         "rows": rows,
         "machine": {
             "platform": platform.platform(),
@@ -300,14 +370,20 @@ def run_speed(out: pathlib.Path, *, quick: bool = False, log=print) -> list[str]
         "densities_s",
         "path_steps_per_s",
         "x_numpy",
+        "x_jax",
         "peak_rss_mib",
     ]
     lines = _table(rows, cols)
     lines.append("\nNumPy baseline (`numpy_mcs`: RK4, half-step Gaussian forcing, mirror rule; one core), per batch:\n")
     lines += _table(baseline_rows, ["dtype", "n_paths", "n_steps", "repeats", "median_s", "path_steps_per_s"])
+    lines.append("\nPlain JAX baseline (`jax_mcs`: the same scheme as one jitted `lax.scan`; one device), per batch:\n")
+    lines += _table(jax_rows, ["dtype", "n_paths", "n_steps", "compile_s", "median_s", "path_steps_per_s"])
     for dtype, b in best.items():
         lines.append(f"\nBaseline {dtype} (`x_numpy` of the {dtype} rows): {b['n_paths']} paths per batch, ")
         lines[-1] += f"{b['path_steps_per_s']:.3g} path-steps/s."
+        if dtype in best_jax:
+            lines[-1] += f" Plain JAX (`x_jax`): {best_jax[dtype]['n_paths']} paths per batch, "
+            lines[-1] += f"{best_jax[dtype]['path_steps_per_s']:.3g} path-steps/s."
     lines.append(f"\nLoad average (1, 5, 15 min) after the baseline: {load_after_baseline}; ")
     lines[-1] += f"at the end: {info['load_average']}."
     (out / f"{name}.md").write_text("\n".join(lines) + "\n")

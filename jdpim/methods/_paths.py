@@ -34,6 +34,9 @@ DEVICE_MEMORY_SHARE = 0.5  # share of an accelerator's memory one chunk's excita
 # most bytes of one per-path number per chunk on a CPU (512 float32 or 256 float64 paths): above about
 # 2.1 KiB the cost per path-step rises 1.2-2.5x (docs/speed.md)
 CPU_CHUNK_BYTES = 2048
+# with the noise drawn inside the steps (no excitation array) and the mirror rule, larger chunks pay on a CPU;
+# with located impacts they do not (docs/speed.md)
+NODES_MIRROR_CHUNK_FACTOR = 4
 
 
 class NonFiniteWarning(RuntimeWarning):
@@ -84,12 +87,15 @@ def default_chunk_size(scene: Scene, n_paths: int) -> int:
     """Paths per chunk so that one chunk's excitation work stays within :func:`memory_budget`.
 
     On a CPU that is 512 MiB (about 800 paths of the reference scene), and at most 512 paths in float32
-    or 256 in float64 (``CPU_CHUNK_BYTES``), above which XLA's CPU code takes longer per path; on a GPU
+    or 256 in float64 (``CPU_CHUNK_BYTES``; four times that with :class:`jdpim.GaussianNodes` and the mirror
+    rule), above which XLA's CPU code takes longer per path; on a GPU
     half its memory, as far as 32-bit indexing allows: a GPU's time per step barely grows with the paths
     in a chunk, so large chunks are what make it fast (``docs/speed.md``).
     """
     bytes_per_path = 4 * scene.float_dtype.itemsize * _values_per_path(scene)
     cap = CPU_CHUNK_BYTES // scene.float_dtype.itemsize if jax.local_devices()[0].platform == "cpu" else n_paths
+    if isinstance(scene.excitation, GaussianNodes) and scene.impacts.method == "mirror":
+        cap *= NODES_MIRROR_CHUNK_FACTOR
     largest = max(1, min(n_paths, cap, memory_budget() // bytes_per_path, _largest_chunk(scene)))
     n_chunks = -(-n_paths // largest)
     return -(-n_paths // n_chunks)  # equal chunks: the least padding
