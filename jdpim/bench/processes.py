@@ -21,6 +21,7 @@ import time
 import numpy as np
 
 from .._cpu import usable_cores
+from .speed import _table
 
 
 def _free_port() -> int:
@@ -116,16 +117,11 @@ def run_processes(
         log(str(row))
     summary = {"t_end": t_end, "n_samples": n_samples, "n_points": n_points, "repeats": repeats, "rows": rows}
     (out / "processes.json").write_text(json.dumps(summary, indent=1))
-    keys = list(rows[0])
-    lines = [
+    title = (
         f"Reference scene to t = {t_end:g} s (dt = 0.01, float32): Monte Carlo {n_samples} paths, DPIM {n_points} "
-        f"points; median of {repeats} warm runs including the x density; speed-up against 1 process on 1 device",
-        "",
-        "| " + " | ".join(keys) + " |",
-        "|" + "---|" * len(keys),
-    ]
-    lines += ["| " + " | ".join(str(r[k]) for k in keys) + " |" for r in rows]
-    (out / "processes.md").write_text("\n".join(lines) + "\n")
+        f"points; median of {repeats} warm runs including the x density; speed-up against 1 process on 1 device"
+    )
+    (out / "processes.md").write_text("\n".join([title, "", *_table(rows, list(rows[0]))]) + "\n")
     return ["processes.json", "processes.md"]
 
 
