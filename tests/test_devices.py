@@ -101,6 +101,7 @@ def test_balanced_chunks_are_no_larger_and_pad_less_than_a_path_per_chunk(n, chu
     assert 0 <= n_chunks * c - share < n_chunks
 
 
+@pytest.mark.slow  # blocks: test_blocks_give_the_same_states_as_one_call
 def test_blocks_are_equal_so_that_a_run_just_over_one_block_pads_little(capsys):
     """16 chunks of 8 make a default block of 128 paths; 136 paths run as two blocks of 72 (not 128 + 128)."""
     rows, _, chunk = monte_carlo_inputs(SCENE, 136, seed=4, chunk_size=8)

@@ -66,6 +66,7 @@ def test_brownian_velocity_with_drift_passes_and_its_derivatives_as_exactly_know
     np.testing.assert_array_equal(np.asarray(cd.probability), p)  # the nominal paths are the same
 
 
+@pytest.mark.slow  # dP/dalpha by the likelihood ratio is checked against path integration (test_first_passage_pi)
 def test_derivatives_take_the_likelihood_ratio_for_drift_and_differences_for_restitution():
     scene = jdpim.Scene(REF, noise=jdpim.WhiteNoise(D=0.03), t_end=10.0, dt=0.01)
     fp = jdpim.first_passage(scene, "x", [0.4, 0.8], jdpim.MonteCarlo(n_samples=4000, seed=0), wrt=("alpha", "r"))
@@ -74,6 +75,10 @@ def test_derivatives_take_the_likelihood_ratio_for_drift_and_differences_for_res
     assert np.all(a < -2 * a_se) and np.all(r > 2 * r_se)  # more damping: fewer passages; bouncier: more
     dp = jdpim.first_passage(scene, "x", 0.4, jdpim.DPIM(n_points=200), wrt="r")
     assert dp.derivative_stderr is None and dp.derivative["r"].shape == (1, 1)
+
+
+def test_estimators_that_do_not_apply_are_refused_in_one_line():
+    scene = jdpim.Scene(REF, noise=jdpim.WhiteNoise(D=0.03), t_end=1.0, dt=0.01)
     with pytest.raises(ValueError, match="LikelihoodRatio applies to drift parameters only, not 'r'"):
         jdpim.first_passage(scene, "x", 0.4, jdpim.MonteCarlo(n_samples=10), wrt="r", estimator=jdpim.LikelihoodRatio())
     with pytest.raises(ValueError, match="whole history"):

@@ -330,6 +330,7 @@ def test_pathwise_derivatives_through_a_grazing_start_warn(grazing):
         jax.jit(jax.jacfwd(p))(jnp.float32(0.03))
 
 
+@pytest.mark.slow  # the warning itself: test_pathwise_derivatives_through_a_grazing_start_warn
 def test_no_grazing_warning_without_derivatives_or_off_the_barrier(grazing):
     scene, points = grazing
     with warnings.catch_warnings():

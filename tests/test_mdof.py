@@ -263,16 +263,19 @@ def test_parameters_of_several_degrees_of_freedom_by_name():
         jdpim.with_parameters(scene, {"stiffness[2,0]": 1.0})
 
 
-def test_derivatives_of_several_degrees_of_freedom_warn_or_refuse():
-    """Pathwise derivatives through impacts between masses are not validated: jax.grad warns; sensitivity refuses
-    every estimator but central differences."""
+def _damper_scene():
     damper = jdpim.MDOFOscillator(
         mass=np.diag([1.0, 0.05]),
         gains=[[1.0], [0.0]],
         stiffness=np.diag([1.0, 0.0]),
         constraints=(jdpim.Barrier((-1.0, 1.0), -0.1, 1.0), jdpim.Barrier((1.0, -1.0), -0.1, 0.5)),
     )
-    scene = jdpim.Scene(damper, noise=jdpim.WhiteNoise(D=0.01), t_end=0.5, dt=0.01, x0=[0.3, 0.3])
+    return jdpim.Scene(damper, noise=jdpim.WhiteNoise(D=0.01), t_end=0.5, dt=0.01, x0=[0.3, 0.3])
+
+
+def test_reverse_mode_through_impacts_between_masses_warns():
+    """Pathwise derivatives through impacts between masses are not validated: jax.grad warns."""
+    scene = _damper_scene()
 
     def second_moment(k):
         s = jdpim.with_parameters(scene, {"stiffness[0,0]": k})
@@ -280,6 +283,11 @@ def test_derivatives_of_several_degrees_of_freedom_warn_or_refuse():
 
     with pytest.warns(jdpim.SensitivityWarning, match="several degrees of freedom"):
         jax.grad(second_moment)(1.0)
+
+
+def test_sensitivity_of_several_degrees_of_freedom_takes_central_differences_only():
+    """``sensitivity`` refuses every estimator but central differences for several degrees of freedom."""
+    scene = _damper_scene()
     grid = np.linspace(-1.0, 1.0, 5)
     with pytest.raises(ValueError, match="CentralDifference only"):
         jdpim.sensitivity(scene, ("stiffness[0,0]",), "x1", grid, estimator=jdpim.Pathwise())

@@ -58,7 +58,7 @@ def _three_ways(f, p0):
     ("gamma", "r", "extent"),
     [
         (0.03, 0.1, 5.0),
-        (0.03, 0.9, 5.0),
+        pytest.param(0.03, 0.9, 5.0, marks=pytest.mark.slow),  # cubic weights: test_path_integration's gradient
         pytest.param(0.0, 0.3, None, marks=pytest.mark.slow),
         pytest.param(0.03, 0.5, 5.0, marks=pytest.mark.slow),
         pytest.param(0.0, 0.98, 5.0, marks=pytest.mark.slow),

@@ -89,6 +89,7 @@ def test_interpolated_marginals_integrate_to_one(r):
     assert abs(float(res.mass()) - 1) < 1e-5
 
 
+@pytest.mark.slow  # grid errors are also checked in tests/test_first_passage_pi.py
 def test_grid_error_estimate_covers_the_exact_error():
     # Measured (float64): estimate / error = 5.5-11 (x) and 4.4-8.8 (v) over stationary, t = 5 and t = 20
     # on 61 x 121 and 121 x 241 nodes
