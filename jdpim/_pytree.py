@@ -114,6 +114,15 @@ def check_int(name: str, value: Any, *, low: int) -> int:
     return int(value)
 
 
+def real_array(name: str, value: Any, expected: str) -> np.ndarray:
+    """``value`` as a concrete float array; text (also inside a sequence), booleans, other non-numbers and traced
+    values are a ``TypeError``: ``{name} must be {expected}, got {value!r}``."""
+    arr = None if isinstance(value, (str, bytes)) else concrete(value)
+    if arr is None or arr.dtype == bool or not np.issubdtype(arr.dtype, np.number):
+        raise TypeError(f"{name} must be {expected}, got {value!r}")
+    return arr.astype(float)
+
+
 def _numeric(name: str, value: Any) -> np.ndarray | None:
     """``value`` as a concrete array (``None`` if traced); text and other non-numbers are a ``TypeError``."""
     if isinstance(value, (str, bytes)):

@@ -17,7 +17,7 @@ from ._integrate import ImpactRule, Substeps
 from ._mdof import MDOFOscillator
 from ._models import AbstractOscillator, AbstractSystem, Oscillator, n_sources_of
 from ._noise import WhiteNoise
-from ._pytree import array_leaf, check_real, concrete, pytree_dataclass, static_field
+from ._pytree import array_leaf, check_real, concrete, pytree_dataclass, real_array, static_field
 
 NOISE_PARAMETERS = ("D",)  # parameters of the excitation, beside the model's
 _GRID_TOL = 1e-6  # relative tolerance (in steps) for times that must lie on the time grid
@@ -148,10 +148,7 @@ class Scene:
     def _checked_save_at(self, save_at) -> tuple[float, ...]:
         if save_at is None:
             return (self.t_end,)
-        try:
-            times = np.atleast_1d(np.asarray(save_at, dtype=float))
-        except (TypeError, ValueError):
-            raise TypeError(f"save_at must be a sequence of times in s, got {save_at!r}") from None
+        times = np.atleast_1d(real_array("save_at", save_at, "a sequence of times in s"))
         if times.ndim != 1 or times.size == 0:
             raise ValueError(f"save_at must be a non-empty 1-D sequence of times, got {save_at!r}")
         check_real("save_at", times, low=0.0, high=self.t_end)

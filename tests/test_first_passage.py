@@ -140,6 +140,8 @@ BAD = {
     "level-not-finite": ((SCENE, "x", [np.inf], MC), ValueError, "level must be finite"),
     "level-empty": ((SCENE, "x", [], MC), ValueError, "non-empty 1-D sequence"),
     "level-text": ((SCENE, "x", "high", MC), TypeError, "level must be a number"),
+    "level-numeric-text": ((SCENE, "x", ["0.2"], MC), TypeError, "level must be a number"),
+    "level-bool": ((SCENE, "x", True, MC), TypeError, "level must be a number"),
     "var-name": ((SCENE, "x1", 0.2, MC), ValueError, r"var must be one of the coordinates \('x', 'v'\)"),
     "var-shape": ((SCENE, lambda s: s, 0.2, MC), ValueError, r"var must return a scalar .* got shape \(2,\)"),
     "method-class": ((SCENE, "x", 0.2, jdpim.MonteCarlo), TypeError, "method must be a jdpim method object"),
@@ -194,3 +196,15 @@ def test_replicates_refused_in_one_line(method, replicates, kind, match):
     with pytest.raises(kind, match=match) as info:
         jdpim.first_passage(SCENE, "x", 0.2, method, replicates=replicates)
     assert "\n" not in str(info.value)
+
+
+def test_raw_grad_through_sampled_probabilities_warns_that_it_is_zero():
+    """``jax.grad`` through a Monte Carlo first-passage probability differentiates indicators: zero, and warned."""
+    scene = jdpim.Scene(REF, noise=jdpim.WhiteNoise(D=0.03), t_end=1.0, dt=0.01, x0=0.3)
+
+    def p(alpha):
+        s = jdpim.with_parameters(scene, {"alpha": alpha})
+        return jdpim.first_passage(s, "x", 0.35, jdpim.MonteCarlo(n_samples=64, seed=0)).probability[-1, 0]
+
+    with pytest.warns(jdpim.SensitivityWarning, match="counted over sampled paths"):
+        assert float(jax.grad(p)(0.03)) == 0.0

@@ -160,3 +160,16 @@ def test_several_degrees_of_freedom_refused():
     with pytest.raises(ValueError, match="needs a one-degree-of-freedom scene.*MonteCarlo") as info:
         jdpim.first_passage(scene, "x1", 0.5, jdpim.PathIntegration())
     assert "\n" not in str(info.value)
+
+
+def test_raw_jacfwd_equals_the_derivative_of_wrt():
+    """``jax.jacfwd`` of ``first_passage(...).probability`` by path integration, as a user writes it, gives
+    ``FirstPassage.derivative``."""
+    scene = reference_scene().replace(save_at=(10.0,))
+    settings = jdpim.PathIntegration(n_x=61, n_v=121, x_max=1.6, v_max=1.6, order=4)
+    fp = jdpim.first_passage(scene, "x", 0.5, settings, wrt="alpha")
+
+    def p(alpha):
+        return jdpim.first_passage(jdpim.with_parameters(scene, {"alpha": alpha}), "x", 0.5, settings).probability
+
+    np.testing.assert_allclose(jax.jacfwd(p)(0.03), fp.derivative["alpha"], rtol=1e-5)

@@ -207,6 +207,7 @@ TYPED = {
     "D-text": (lambda: jdpim.WhiteNoise(D="x"), TypeError, r"^D must be a real number"),
     "t_end-text": (lambda: scene(t_end="10"), TypeError, r"^t_end must be a real number"),
     "save_at-text": (lambda: scene(save_at=["a"]), TypeError, r"^save_at must be a sequence of times"),
+    "save_at-numeric-text": (lambda: scene(save_at="1.0"), TypeError, r"^save_at must be a sequence of times"),
     "x0-list": (lambda: scene(x0=[0.1, 0.2]), ValueError, r"^x0 must be a scalar"),
     "uniform-text": (lambda: jdpim.Uniform("a", 1.0), TypeError, r"^low must be a real number"),
     "normal-text": (lambda: jdpim.Normal(0.0, "b"), TypeError, r"^std must be a real number"),

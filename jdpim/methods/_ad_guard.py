@@ -1,5 +1,6 @@
-"""A warning raised when pathwise derivatives are taken through a grazing start, or through the impacts of a
-system of several degrees of freedom (not validated).
+"""A warning raised when pathwise derivatives are taken through a grazing start, through the impacts of a
+system of several degrees of freedom (not validated), or through probabilities counted over sampled paths
+(zero).
 
 Paths that start at rest on the barrier (the default start) graze it at once: the impact's saltation
 factor divides by an impact speed near zero, so the pathwise derivative of each path is dominated by
@@ -55,6 +56,19 @@ SEVERAL_DOF = (
 )
 
 
+INDICATOR = (
+    "the pathwise derivative of a probability counted over sampled paths (first passage, impacts) is zero: each "
+    "path's indicator is piecewise constant in the parameters; pass wrt= to jdpim.first_passage (likelihood "
+    "ratio or central differences) or use path integration"
+)
+
+
+def watch(tree, message: str):
+    """``tree`` itself; differentiating through it warns ``message`` (``SensitivityWarning``)."""
+    leaves, treedef = jax.tree_util.tree_flatten(tree)
+    return jax.tree_util.tree_unflatten(treedef, _watched(message, leaves))
+
+
 def guard(scene: Scene) -> Scene:
     """``scene`` itself; differentiating through it warns (``SensitivityWarning``) when its paths start grazing,
     or when it has several degrees of freedom and constraints."""
@@ -64,8 +78,7 @@ def guard(scene: Scene) -> Scene:
         message = SEVERAL_DOF
     else:
         return scene
-    leaves, treedef = jax.tree_util.tree_flatten(scene)
-    return jax.tree_util.tree_unflatten(treedef, _watched(message, leaves))
+    return watch(scene, message)
 
 
 @functools.partial(jax.custom_jvp, nondiff_argnums=(0,))

@@ -18,6 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._models import AbstractOscillator
+from .._pytree import concrete
 from .._scene import with_parameters
 from ..methods._path_integration import (
     PathIntegration,
@@ -193,6 +194,9 @@ def _survival(scene, settings: PathIntegration, extents, initial, keep):
 
 
 def _report(probability, defect, leak, settings: PathIntegration) -> None:
+    probability, defect, leak = concrete(probability), concrete(defect), concrete(leak)
+    if probability is None or defect is None or leak is None:
+        return  # traced (differentiated by the caller): nothing to inspect here
     problems = []
     if not np.all(np.isfinite(probability)):
         problems.append("non-finite probabilities (the density became non-finite)")

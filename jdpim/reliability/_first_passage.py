@@ -16,7 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._pytree import check_int, concrete, pytree_dataclass, static_field
+from .._pytree import check_int, concrete, pytree_dataclass, real_array, static_field
 from .._scene import Scene, parameter_value, saved_index, static_times
 from ..methods._base import AbstractMethod
 from ..methods._paths import NonFiniteWarning
@@ -154,10 +154,7 @@ def _quantity(scene: Scene, var) -> Callable:
 
 
 def _levels(scene: Scene, var, level) -> np.ndarray:
-    try:
-        levels = np.atleast_1d(np.asarray(level, dtype=float))
-    except (TypeError, ValueError):
-        raise TypeError(f"level must be a number or a 1-D sequence of numbers, got {level!r}") from None
+    levels = np.atleast_1d(real_array("level", level, "a number or a 1-D sequence of numbers"))
     if levels.ndim != 1 or levels.size == 0:
         raise ValueError(f"level must be a number or a non-empty 1-D sequence of numbers, got shape {levels.shape}")
     if not np.all(np.isfinite(levels)):

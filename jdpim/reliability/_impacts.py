@@ -19,6 +19,7 @@ import numpy as np
 from .._integrate import Impacts
 from .._pytree import check_grid, pytree_dataclass, static_field
 from .._scene import Scene, static_times
+from ..methods._ad_guard import INDICATOR, watch
 from ..methods._paths import SamplingMethod, run_paths
 
 
@@ -101,6 +102,7 @@ def impact_statistics(scene: Scene, method: SamplingMethod, speed_edges=None) ->
     _, tracked = run_paths(
         scene, rows, kind=method.name, chunk_size=chunk, devices=method.devices, progress=method.progress, track=track
     )
+    tracked = watch(tracked, INDICATOR)  # counts and indicators: no pathwise derivative
     sampled = method.name == "monte_carlo"
     p, p_se = _weighted(weights, tracked[..., 0], sampled)
     count, count_se = _weighted(weights, tracked[..., 1], sampled)

@@ -10,6 +10,7 @@ import jax.numpy as jnp
 
 from .._integrate import RunningMax, Stacked, Sums
 from .._scene import Scene, with_parameters
+from ..methods._ad_guard import INDICATOR, watch
 from ..methods._paths import run_paths
 from ..sensitivities._estimators import Score
 from ..sensitivities._sensitivity import _centred_scores
@@ -51,7 +52,7 @@ def sampled_first_passage(method, scene: Scene, query) -> FirstPassage:
             track=track,
         )[1]
 
-    nominal = tracked(scene)
+    nominal = watch(tracked(scene), INDICATOR)
     sampled = method.name == "monte_carlo"  # independent samples: a sampling standard error
     out = FirstPassage.from_tracked(scene.save_at, query.levels, nominal[..., :2], weights, method.name, stderr=sampled)
     if not query.wrt:
