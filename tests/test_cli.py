@@ -93,7 +93,11 @@ def test_an_absent_term_is_not_in_the_model(tmp_path, spelling):
         ({"r": "1.5"}, "s.toml: [model] r: must lie in [0, 1], got 1.5"),
         ({"r": '"high"'}, "s.toml: [model] r: must be a number, got a string 'high'"),
         ({"alpha": "-1"}, "s.toml: [model] alpha: must lie in [0, inf), got -1"),
-        ({"kind": '"duffing"'}, "s.toml: [model] kind: must be one of ['vibro_impact', 'mdof'], got 'duffing'"),
+        (
+            {"kind": '"duffing"'},
+            "s.toml: [model] kind: must be one of ['vibro_impact', 'mdof', 'impact_damper', 'pounding_frame', "
+            "'gear_pair'], got 'duffing'",
+        ),
         ({"D": "true"}, "s.toml: [noise] D: must be a number, got a boolean True"),
         ({"n_points": "1.5"}, "s.toml: [method] n_points: must be an integer, got a float 1.5"),
         ({"n_samples": "1"}, "s.toml: [method] n_samples: must be an integer >= 2, got 1"),

@@ -22,6 +22,7 @@ SMALL = (
     ("n_samples = 4000", "n_samples = 64"),
     ("[output]", "[initial]\nv0 = [0.5, 0.0]\n\n[output]"),
 )
+GAP = ("[output]", "[output]\nderived = { gap = { x2 = 1.0, x1 = -1.0 } }")  # the relative displacement
 
 
 def _write(tmp_path, *changes, name="damper.toml") -> pathlib.Path:
@@ -53,16 +54,17 @@ def test_the_example_parses_as_documented():
 
 
 def test_run_stores_every_coordinate_and_equals_solve_on_the_scene_built_by_hand(tmp_path):
-    path = _write(tmp_path)
+    path = _write(tmp_path, GAP)
     assert cli.main(["run", str(path), "--out", str(tmp_path / "out"), "--quiet"]) == 0
     out = tmp_path / "out"
     with np.load(out / "damper.npz", allow_pickle=False) as npz:
         arrays = {k: npz[k] for k in npz.files}
     meta = json.loads((out / "damper.json").read_text())
-    pngs = [f"damper_marginal_{c}.png" for c in COORDINATES] + ["damper_joint_x1_x2.png"]
+    pngs = [f"damper_marginal_{c}.png" for c in (*COORDINATES, "gap")] + ["damper_joint_x1_x2.png"]
     assert sorted(meta["files"]) == sorted(["damper.npz", "damper_timing.csv", "damper.json", *pngs])
     assert all((out / f).is_file() for f in meta["files"])
     assert meta["parameters"]["model"]["names"] == ["x1", "x2"]
+    assert meta["parameters"]["output"]["derived"] == {"gap": {"x2": 1.0, "x1": -1.0}}
     assert (out / "damper_timing.csv").read_text().splitlines()[1] == "method,paths,steps,wall_s,cpu_s"
 
     model = jdpim.MDOFOscillator(
@@ -89,6 +91,12 @@ def test_run_stores_every_coordinate_and_equals_solve_on_the_scene_built_by_hand
             np.testing.assert_allclose(
                 arrays[f"{name}_joint_x1_x2"][i], res.joint_pdf(("x1", "x2"), joint, t), rtol=1e-5, atol=1e-6
             )
+            gap, grid = (lambda s: s[1] - s[0]), arrays["gap_grid"]  # the derived quantity: x2 - x1
+            assert grid[0] < 0 < grid[-1] and np.all(np.diff(grid) > 0)
+            close = {"rtol": 1e-5, "atol": 1e-6 * arrays[f"{name}_pdf_gap"].max()}
+            np.testing.assert_allclose(arrays[f"{name}_pdf_gap"][i], res.pdf(gap, grid, t), **close)
+            if name == "monte_carlo":
+                np.testing.assert_allclose(arrays[f"{name}_stderr_gap"][i], res.pdf_error(gap, grid, t), **close)
     assert "dpim_stderr_x1" not in arrays  # DPIM points are not independent samples
 
 
@@ -134,8 +142,8 @@ def test_run_stores_every_coordinate_and_equals_solve_on_the_scene_built_by_hand
         ),
         (
             [('kind = "mdof"', 'kind = "mdof"\nalpha = 0.1')],
-            "damper.toml: [model] alpha: unknown key; allowed keys are ['constraints', 'damping', 'gains', 'kind', "
-            "'mass', 'names', 'stiffness']",
+            "damper.toml: [model] alpha: unknown key; allowed keys are ['constraints', 'damping', 'filters', 'gains', "
+            "'kind', 'mass', 'names', 'stiffness']",
         ),
         (
             [('kind = "mdof"', 'kind = "mdof"\nnames = ["x", "v"]')],
@@ -169,6 +177,23 @@ def test_run_stores_every_coordinate_and_equals_solve_on_the_scene_built_by_hand
         (
             [('densities = ["x1", "x2", "v1", "v2"]', 'densities = ["x1", "x3"]')],
             "damper.toml: [output] densities: must be one of ['x1', 'x2', 'v1', 'v2'], got 'x3'",
+        ),
+        (
+            [GAP, ("gap = { x2 = 1.0, x1 = -1.0 }", "gap = { x2 = 1.0, x3 = -1.0 }")],
+            "damper.toml: [output] derived.gap.x3: must be a coordinate of the model, one of ['x1', 'x2', 'v1', 'v2']",
+        ),
+        (
+            [GAP, ("gap = { x2 = 1.0, x1 = -1.0 }", "x1 = { x2 = 1.0 }")],
+            "damper.toml: [output] derived.x1: must be a name (a letter, then letters, digits or _) other than the "
+            "coordinates",
+        ),
+        (
+            [GAP, ("gap = { x2 = 1.0, x1 = -1.0 }", "gap = { x2 = 1.0, x1 = true }")],
+            "damper.toml: [output] derived.gap.x1: must be a number, got a boolean True",
+        ),
+        (
+            [GAP, ("gap = { x2 = 1.0, x1 = -1.0 }", "gap = 1.0")],
+            "damper.toml: [output] derived.gap: must be a table of names, each a table of coefficients by coordinate",
         ),
         (
             [('joint = [["x1", "x2"]]', 'joint = [["x1", "x1"]]')],

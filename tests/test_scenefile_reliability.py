@@ -104,6 +104,7 @@ def test_mdof_magnitude_of_a_coordinate(tmp_path):
     sf = load(tmp_path / "damper.toml")
     assert sf.reliability.quantity == Magnitude("x1", 0) and hash(sf.reliability.quantity) == hash(Magnitude("x1", 0))
     assert meta["parameters"]["reliability"] == {"quantity": "|x1|", "levels": [0.01]}
+    assert "| t (s) | P(\\|x1\\| > 0.01) |" in (tmp_path / "damper" / "damper_first_passage.md").read_text()
     fp = jdpim.first_passage(sf.scene, lambda s: abs(s[0]), 0.01, jdpim.DPIM(n_points=32))
     np.testing.assert_array_equal(arrays["first_passage_dpim_probability"], fp.probability)
     assert arrays["first_passage_dpim_probability"].shape == (2, 1) and "first_passage_dpim_stderr" not in arrays

@@ -40,8 +40,15 @@ every saved time (``jdpim.first_passage``).
     r = 0.5
 
 with ``[noise] D`` a number (one source) or an ``(m, m)`` matrix, ``[initial] x0``, ``v0`` arrays of ``n``
-numbers (default: at rest at 0), ``[output] densities`` the coordinates whose marginals are stored (default:
-all of ``model.coordinates``) and ``[output] joint`` pairs of them (``[["x1", "x2"]]``; default: none).
+numbers (default: at rest at the model's start, 0 but for a harmonic filter), ``[output] densities`` the
+coordinates whose marginals are stored (default: all of ``model.coordinates``) and ``[output] joint`` pairs of
+them (``[["x1", "x2"]]``; default: none).
+
+``kind`` may also name an example system, ``"impact_damper"``, ``"pounding_frame"`` or ``"gear_pair"``, whose
+function's arguments are the table's keys (each optional). Models of several degrees of freedom take filters,
+``[[model.filters]]`` with ``kind`` one of ``"kanai_tajimi"``, ``"first_order"``, ``"harmonic"`` and the
+function's arguments, appended in order. ``[output] derived`` names linear combinations of coordinates
+(``drift = {x2 = 1.0, x1 = -1.0}``) whose marginals are stored and which ``[reliability] quantity`` may name.
 
 Every error names the file and the key (``scene.toml: [model] r: must lie in [0, 1], got 1.5``,
 ``damper.toml: [model] constraints[1].r: must lie in [0, 1], got 1.5``).
@@ -50,6 +57,7 @@ Every error names the file and the key (``scene.toml: [model] r: must lie in [0,
 from __future__ import annotations
 
 import dataclasses
+import inspect
 import numbers
 import pathlib
 import re
@@ -62,7 +70,9 @@ else:  # pragma: no cover - Python 3.10
     import tomli as tomllib
 
 NONE = "none"  # the TOML spelling of "this term is absent"
-KINDS = ("vibro_impact", "mdof")
+EXAMPLES = ("impact_damper", "pounding_frame", "gear_pair")  # jdpim's example systems, by their function's name
+KINDS = ("vibro_impact", "mdof", *EXAMPLES)
+FILTERS = ("kanai_tajimi", "first_order", "harmonic")  # [[model.filters]] kind -> jdpim.kanai_tajimi, ...
 METHODS = ("dpim", "monte_carlo")
 DENSITIES = ("x", "v", "joint")  # [output] densities of one degree of freedom
 NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]*")  # a coordinate's name: it names arrays and files
@@ -92,25 +102,45 @@ class Method:
 @dataclasses.dataclass(frozen=True)
 class Outputs:
     """What a scene-file run stores: the marginals of the coordinates ``marginals``, the joint densities of the
-    coordinate pairs ``joint``, raw states, figures, and the number of grid nodes per coordinate."""
+    coordinate pairs ``joint``, the marginals of the derived quantities ``derived``, raw states, figures, and the
+    number of grid nodes per coordinate."""
 
     marginals: tuple[str, ...] = ("x", "v")
     joint: tuple[tuple[str, str], ...] = (("x", "v"),)
+    derived: tuple[Linear, ...] = ()
     states: bool = False
     figures: bool = True
     n_grid: int = 201
 
 
 @dataclasses.dataclass(frozen=True)
-class Magnitude:
-    """``|state[index]|``, the two-sided quantity ``"|name|"`` of ``[reliability]``: a function of the state
-    ``(n_state,)`` that is hashable, so ``jdpim.first_passage`` traces it as a static argument."""
+class Linear:
+    """``sum_i c_i state[i]``, a quantity of ``[output.derived]`` (``gap = {x2 = 1.0, x1 = -1.0}``): a function of
+    the state ``(n_state,)`` that is hashable, so ``jdpim.first_passage`` traces it as a static argument.
+
+    ``terms`` are ``(index, coefficient)`` pairs, indices into ``model.coordinates``; ``str`` gives the name.
+    """
 
     name: str
-    index: int
+    terms: tuple[tuple[int, float], ...]
 
     def __call__(self, state):
-        return abs(state[self.index])
+        return sum(c * state[i] for i, c in self.terms)
+
+    def __str__(self) -> str:
+        return self.name
+
+
+@dataclasses.dataclass(frozen=True)
+class Magnitude:
+    """``|q|``, the two-sided quantity ``"|name|"`` of ``[reliability]``, of a coordinate (``quantity``: its index
+    in the state) or of a derived quantity (a :class:`Linear`); hashable like :class:`Linear`."""
+
+    name: str
+    quantity: int | Linear
+
+    def __call__(self, state):
+        return abs(self.quantity(state) if callable(self.quantity) else state[self.quantity])
 
     def __str__(self) -> str:
         return f"|{self.name}|"
@@ -118,10 +148,10 @@ class Magnitude:
 
 @dataclasses.dataclass(frozen=True)
 class Reliability:
-    """``[reliability]``: the first passage of ``quantity`` (a coordinate's name or a :class:`Magnitude`; ``str``
-    gives its spelling in the file) above each of ``levels`` (``L`` floats)."""
+    """``[reliability]``: the first passage of ``quantity`` (a coordinate's name, a :class:`Linear` or a
+    :class:`Magnitude`; ``str`` gives its spelling in the file) above each of ``levels`` (``L`` floats)."""
 
-    quantity: str | Magnitude
+    quantity: str | Linear | Magnitude
     levels: tuple[float, ...]
 
 
@@ -143,16 +173,25 @@ class SceneFile:
 
 _MODEL_KEYS = {
     "vibro_impact": {"kind", "alpha", "gamma", "r", "barrier", "omega"},
-    "mdof": {"kind", "mass", "damping", "stiffness", "gains", "names", "constraints"},
+    "mdof": {"kind", "mass", "damping", "stiffness", "gains", "names", "constraints", "filters"},
+    "impact_damper": {"kind", "mass_ratio", "frequency", "damping_ratio", "clearance", "r", "filters"},
+    "pounding_frame": {"kind", "n_storeys", "frequency", "damping_ratio", "gap", "r", "storey", "filters"},
+    "gear_pair": {"kind", "mass_ratio", "drag", "bearing_damping", "backlash", "r", "filters"},
 }
+_INTEGER_KEYS = {"n_storeys", "storey"}  # integers >= 1 of the example systems; every other key is a number
 _CONSTRAINT_KEYS = {"normal", "position", "r"}
+_FILTER_KEYS = {
+    "kanai_tajimi": {"kind", "omega_g", "zeta_g", "influence"},
+    "first_order": {"kind", "a"},
+    "harmonic": {"kind", "amplitude", "frequency", "direction"},
+}
 _SCHEMA = {
     "model": set().union(*_MODEL_KEYS.values()),  # checked against the kind's keys once the kind is known
     "noise": {"D"},
     "time": {"t_end", "dt", "save_at"},
     "initial": {"x0", "v0"},
     "method": {"name", "n_points", "n_samples", "seed"},
-    "output": {"densities", "joint", "states", "figures", "n_grid"},
+    "output": {"densities", "joint", "derived", "states", "figures", "n_grid"},
     "reliability": {"quantity", "levels"},
 }
 _REQUIRED = ("model", "noise", "time", "method")
@@ -377,6 +416,82 @@ def _mdof(m: _Reader):
     return model, table
 
 
+def _example(m: _Reader, kind: str):
+    """``jdpim.<kind>(...)`` of an example system's model table (each key an argument of the function, optional),
+    and its arguments with the defaults filled in. Types are checked here, ranges by the library."""
+    import jdpim
+
+    build = getattr(jdpim, kind)
+    args = {}
+    for key, par in inspect.signature(build).parameters.items():
+        if key in _INTEGER_KEYS:
+            given = m.table.get(key, par.default)
+            args[key] = None if given is None else m.integer(key, par.default, low=1)
+        else:
+            args[key] = m.number(key, par.default)
+    try:
+        model = build(**args)
+    except (ValueError, TypeError) as err:
+        raise _library_error(m.path, err, "model") from None
+    if kind == "pounding_frame" and args["storey"] is None:
+        args["storey"] = args["n_storeys"]  # the top storey pounds by default
+    return model, {"kind": kind, **args}
+
+
+def _filters(m: _Reader, model):
+    """``model`` with the filters of ``[[model.filters]]`` appended in order (``jdpim.kanai_tajimi``,
+    ``jdpim.first_order_filter``, ``jdpim.harmonic``), and their tables with the defaults filled in."""
+    import jdpim
+
+    tables = m.table.get("filters", [])
+    if not isinstance(tables, list) or not all(isinstance(t, dict) for t in tables):
+        m.fail(
+            "filters", f"must be an array of tables [[model.filters]] (kind = one of {list(FILTERS)}), got {tables!r}"
+        )
+    filled = []
+    for i, table in enumerate(tables):
+        f = _Reader(m.path, "model", table, None, prefix=f"filters[{i}].")
+        kind = table.get("kind")
+        if kind not in FILTERS:
+            f.fail("kind", f"must be one of {list(FILTERS)}, got {kind!r}")
+        f.only(_FILTER_KEYS[kind])
+        build = jdpim.first_order_filter if kind == "first_order" else getattr(jdpim, kind)
+        args = {}
+        for key, par in list(inspect.signature(build).parameters.items())[1:]:
+            if key in ("influence", "direction"):  # a vector over the coordinates so far, or the function's default
+                args[key] = f.vector(key, model.dimension) if key in table else None
+            else:
+                args[key] = f.number(key, None if par.default is inspect.Parameter.empty else par.default)
+        try:
+            model = build(model, **args)
+        except (ValueError, TypeError) as err:
+            raise _library_error(m.path, err, "model", f.prefix) from None
+        filled.append({"kind": kind, **{k: (NONE if v is None else v) for k, v in args.items()}})
+    return model, filled
+
+
+def _derived(o: _Reader, coords: tuple[str, ...]) -> tuple[Linear, ...]:
+    """``[output] derived``: named linear combinations of the coordinates (``gap = {x2 = 1.0, x1 = -1.0}``)."""
+    value = o.table.get("derived", {})
+    example = "a table of names, each a table of coefficients by coordinate, e.g. gap = { x2 = 1.0, x1 = -1.0 }"
+    if not isinstance(value, dict):
+        o.fail("derived", f"must be {example}, got {_toml_type(value)} {value!r}")
+    out = []
+    for name, terms in value.items():
+        if not NAME.fullmatch(name) or name in coords:
+            o.fail(
+                f"derived.{name}",
+                f"must be a name (a letter, then letters, digits or _) other than the coordinates {list(coords)}",
+            )
+        if not isinstance(terms, dict) or not terms:
+            o.fail(f"derived.{name}", f"must be {example}, got {_toml_type(terms)} {terms!r}")
+        for coord in terms:
+            if coord not in coords:
+                o.fail(f"derived.{name}.{coord}", f"must be a coordinate of the model, one of {list(coords)}")
+        out.append(Linear(name, tuple((coords.index(c), o.real(f"derived.{name}.{c}", a)) for c, a in terms.items())))
+    return tuple(out)
+
+
 def _intensity(noise: _Reader, n_sources: int):
     """``[noise] D`` of an MDOF model with ``n_sources`` columns of gains: an ``(m, m)`` matrix, or for one
     source a number >= 0."""
@@ -392,21 +507,24 @@ def _intensity(noise: _Reader, n_sources: int):
     return D
 
 
-def _reliability(r: _Reader, scene) -> Reliability:
-    """``[reliability]`` of ``scene``: a coordinate of its model or ``"|c|"``, and levels above the coordinate's
-    barrier (the library's check, ``jdpim.first_passage``'s message under the key) or, for a magnitude, above 0."""
+def _reliability(r: _Reader, scene, derived: tuple[Linear, ...] = ()) -> Reliability:
+    """``[reliability]`` of ``scene``: a coordinate of its model, a quantity of ``derived`` or ``"|q|"`` of either,
+    and levels above the coordinate's barrier (the library's check, ``jdpim.first_passage``'s message under the
+    key) or, for a magnitude, above 0."""
     from jdpim.reliability._first_passage import _levels
 
-    coords = scene.model.coordinates
+    coords, named = scene.model.coordinates, {q.name: q for q in derived}
     text = r.table.get("quantity")
     if text is None:
         r.fail("quantity", "is required")
     two_sided = isinstance(text, str) and len(text) > 2 and text[0] == text[-1] == "|"
     name = text[1:-1] if two_sided else text
-    if not isinstance(text, str) or name not in coords:
+    if not isinstance(text, str) or (name not in coords and name not in named):
+        either = f", a quantity of [output] derived ({list(named)}), or the magnitude of either"
+        also = either if named else ", or its magnitude"
         r.fail(
             "quantity",
-            f'must be a coordinate of the model, one of {list(coords)}, or its magnitude ("|{coords[0]}|"), '
+            f'must be a coordinate of the model, one of {list(coords)}{also} ("|{coords[0]}|"), '
             f"got {_toml_type(text)} {text!r}",
         )
     above_zero = {"low": 0.0, "low_open": True} if two_sided else {}  # |c| >= 0 exceeds a level <= 0 at once
@@ -419,6 +537,8 @@ def _reliability(r: _Reader, scene) -> Reliability:
         levels = (r.real("levels", value, **above_zero),)
     else:
         r.fail("levels", f"must be a number or a non-empty array of numbers, got {_toml_type(value)} {value!r}")
+    if name in named:
+        return Reliability(Magnitude(name, named[name]) if two_sided else named[name], levels)
     if not two_sided:
         try:
             _levels(scene, name, levels)
@@ -458,8 +578,10 @@ def load(path) -> SceneFile:
     if kind not in KINDS:
         m.fail("kind", f"must be one of {list(KINDS)}, got {kind!r}")
     m.only(_MODEL_KEYS[kind])
-    mdof = kind == "mdof"
-    model, model_table = _mdof(m) if mdof else _vibro_impact(m)
+    mdof = kind != "vibro_impact"  # several degrees of freedom: a jdpim.MDOFOscillator
+    model, model_table = _mdof(m) if kind == "mdof" else _example(m, kind) if mdof else _vibro_impact(m)
+    if mdof:
+        model, model_table["filters"] = _filters(m, model)
     D = _intensity(tables["noise"], model.n_sources) if mdof else tables["noise"].number("D", low=0.0)
     t = tables["time"]
     t_end = t.number("t_end", low=0.0, low_open=True)
@@ -469,8 +591,11 @@ def load(path) -> SceneFile:
         t.fail("save_at", f"must be a non-empty array of times in s, got {save_at!r}")
     save_at = [t.real("save_at", s, low=0.0, high=t_end) for s in save_at]
     init = tables["initial"]
-    if mdof:  # arrays of n numbers, at rest at 0 by default
-        x0, v0 = (init.vector(key, model.dimension, [0.0] * model.dimension) for key in ("x0", "v0"))
+    if mdof:  # arrays of n numbers; by default at rest at the model's start (0, or 1 for a harmonic filter)
+        start = list(model.start or (0.0,) * model.dimension)
+        x0, v0 = (
+            init.vector(key, model.dimension, default) for key, default in (("x0", start), ("v0", [0.0] * len(start)))
+        )
     else:
         x0, v0 = init.number("x0", NONE, allow_none=True), init.number("v0", 0.0)
 
@@ -500,6 +625,7 @@ def load(path) -> SceneFile:
     outputs = Outputs(
         marginals=marginals,
         joint=joint,
+        derived=_derived(o, model.coordinates),
         states=o.boolean("states", False),
         figures=o.boolean("figures", True),
         n_grid=o.integer("n_grid", 201, low=2),
@@ -509,7 +635,7 @@ def load(path) -> SceneFile:
         scene = jdpim.Scene(model, noise=noise, x0=x0, v0=v0, t_end=t_end, dt=dt, save_at=save_at)
     except (ValueError, TypeError) as err:
         raise _library_error(path, err) from None
-    reliability = _reliability(tables["reliability"], scene) if "reliability" in raw else None
+    reliability = _reliability(tables["reliability"], scene, outputs.derived) if "reliability" in raw else None
     table = {
         "model": model_table,
         "noise": {"D": D},
@@ -523,6 +649,11 @@ def load(path) -> SceneFile:
         "output": {
             "densities": list(densities),
             **({"joint": [list(p) for p in joint]} if mdof else {}),
+            **(
+                {"derived": {q.name: {model.coordinates[i]: c for i, c in q.terms} for q in outputs.derived}}
+                if outputs.derived
+                else {}
+            ),
             "states": outputs.states,
             "figures": outputs.figures,
             "n_grid": outputs.n_grid,

@@ -52,8 +52,9 @@ def first_passage(sf: SceneFile, *, progress: bool = True, log=print) -> tuple[d
 def run(sf: SceneFile, out: pathlib.Path, *, progress: bool = True, log=print) -> dict:
     """Run every method of ``sf``, write ``<stem>.npz``, ``<stem>.json``, ``<stem>_timing.csv`` and figures to ``out``.
 
-    The marginals of ``sf.outputs.marginals`` and the joint densities of the pairs ``sf.outputs.joint`` are
-    taken at every saved time on common grids (``report.grids``; a joint density on every second node).
+    The marginals of ``sf.outputs.marginals`` and of the derived quantities ``sf.outputs.derived`` and the joint
+    densities of the pairs ``sf.outputs.joint`` are taken at every saved time on common grids (``report.grids``,
+    ``report.quantity_grids``; a joint density on every second node).
     With ``sf.reliability``, the :func:`first_passage` arrays go to the same ``.npz`` and its tables to
     ``<stem>_first_passage.md`` (and the log). Returns the metadata also written to the JSON file (parameters,
     versions, wall time per method in s, compilation included, array shapes, file names).
@@ -76,9 +77,14 @@ def run(sf: SceneFile, out: pathlib.Path, *, progress: bool = True, log=print) -
     arrays = {"times": np.asarray(scene.save_at)}
     arrays |= {f"{c}_grid": full[c] if c in outputs.marginals else half[c] for c in used}
     arrays |= {f"{c}_grid_joint": half[c] for c in used if c in paired}
-    marginal_grids = {c: full[c] for c in used if c in outputs.marginals}
+    derived = {str(quantity): quantity for quantity in outputs.derived}
+    derived_grids = report.quantity_grids(results.values(), derived, scene.save_at, outputs.n_grid)
+    arrays |= {f"{name}_grid": g for name, g in derived_grids.items()}
+    marginal_grids = {c: full[c] for c in used if c in outputs.marginals} | derived_grids
     joints = {pair: (half[pair[0]], half[pair[1]]) for pair in outputs.joint}
-    arrays |= report.densities(results, scene.save_at, marginal_grids, joints, joint_times=scene.save_at)
+    arrays |= report.densities(
+        results, scene.save_at, marginal_grids, joints, joint_times=scene.save_at, quantities=derived
+    )
     for name, res in results.items():
         if outputs.states:
             arrays[f"{name}_states"], arrays[f"{name}_weights"] = np.asarray(res.states), np.asarray(res.weights)

@@ -141,14 +141,30 @@ def grids(scene, results, n_grid: int, names=None, q: float = 0.999) -> dict:
     return out
 
 
+def quantity_grids(results, quantities: dict, times, n_grid: int, q: float = 0.999) -> dict:
+    """Grids of functions of the state, ``{name: fn}`` (``fn``: state ``(n_state,)`` -> scalar), ``n_grid`` nodes
+    each, covering the central ``q`` of the mass over the saved ``times`` and every sampling result of ``results``."""
+    out = {}
+    for name, fn in quantities.items():
+        ranges = []
+        for res in results:
+            y = np.stack([np.asarray(res.samples(fn, t)) for t in times])
+            w = np.broadcast_to(np.asarray(res.weights)[None, :], y.shape)
+            ranges.append(figures.mass_range(y, w, q=q))
+        out[name] = np.linspace(min(a for a, _ in ranges), max(b for _, b in ranges), n_grid)
+    return out
+
+
 def _has_error(res) -> bool:
     """Whether ``res.pdf_error`` has an estimate: Monte Carlo, or path integration with ``estimate_error``."""
     return res.method == "monte_carlo" or getattr(res, "coarse", None) is not None
 
 
-def _check_spread(res, var, times) -> None:
-    """Fail in words where every finite path of a sampling result has one value of ``var`` at a saved time: a
-    point mass, for which the rule gives no kernel width (a mass not reached yet, a start at rest)."""
+def _check_spread(res, var, times, name=None) -> None:
+    """Fail in words where every finite path of a sampling result has one value of ``var`` (a coordinate, or a
+    function of the state called ``name``) at a saved time: a point mass, for which the rule gives no kernel
+    width (a mass not reached yet, a start at rest)."""
+    name = var if name is None else name
     if not hasattr(res, "samples"):
         return
     for t in times:
@@ -156,8 +172,8 @@ def _check_spread(res, var, times) -> None:
         y = y[np.isfinite(y)]
         if y.size and np.all(y == y[0]):
             raise ValueError(
-                f"{var} has the value {y[0]:g} on every path of {res.method} at t = {t:g} s, a point mass without a "
-                f"density; leave {var} out of the densities or save it later"
+                f"{name} has the value {y[0]:g} on every path of {res.method} at t = {t:g} s, a point mass without a "
+                f"density; leave {name} out of the densities or save it later"
             )
 
 
@@ -167,16 +183,17 @@ def joint_name(pair) -> str:
     return "joint" if tuple(pair) == ("x", "v") else f"joint_{pair[0]}_{pair[1]}"
 
 
-def densities(results: dict, times, grids: dict, joints=None, joint_times=()) -> dict:
+def densities(results: dict, times, grids: dict, joints=None, joint_times=(), quantities=None) -> dict:
     """Densities of named results on common grids.
 
     Args:
         results: name -> ``jdpim.Result`` or ``jdpim.GridResult`` (a stationary one gives its density at
             every time).
         times: saved times of the marginals, s.
-        grids: coordinate (``"x"``, ``"v"``, ``"x1"``, ...) -> 1-D grid of its marginal.
+        grids: coordinate (``"x"``, ``"v"``, ``"x1"``, ...) or name of ``quantities`` -> 1-D grid of its marginal.
         joints: ``{(a, b): (grid_a, grid_b)}``, the coordinate pairs of the joint densities (``None``: none).
         joint_times: saved times of the joint densities, s.
+        quantities: ``{name: fn}``, functions of the state (``(n_state,)`` -> scalar) named in ``grids``.
 
     Returns:
         ``<name>_pdf_<var>``, shape ``(len(times), len(grid))``; ``<name>_stderr_<var>`` of the same shape
@@ -187,11 +204,12 @@ def densities(results: dict, times, grids: dict, joints=None, joint_times=()) ->
     for name, res in results.items():
         at = [None] * len(times) if getattr(res, "stationary", False) else times  # a stationary density has no t
         joint_at = [None] * len(joint_times) if getattr(res, "stationary", False) else joint_times
-        for var, g in grids.items():
-            _check_spread(res, var, at)
-            arrays[f"{name}_pdf_{var}"] = np.stack([np.asarray(res.pdf(var, g, t)) for t in at])
+        for key, g in grids.items():
+            var = (quantities or {}).get(key, key)
+            _check_spread(res, var, at, key)
+            arrays[f"{name}_pdf_{key}"] = np.stack([np.asarray(res.pdf(var, g, t)) for t in at])
             if _has_error(res):
-                arrays[f"{name}_stderr_{var}"] = np.stack([np.asarray(res.pdf_error(var, g, t)) for t in at])
+                arrays[f"{name}_stderr_{key}"] = np.stack([np.asarray(res.pdf_error(var, g, t)) for t in at])
         for pair, pair_grids in (joints or {}).items():
             for var in pair:
                 _check_spread(res, var, joint_at)
@@ -219,7 +237,9 @@ def markdown(rows: list[dict], columns) -> str:
 
 def probability_table(times, levels, probability, stderr=None, quantity: str = "q") -> str:
     """A Markdown table of first-passage probabilities ``(S, L)``: a row per saved time (s), a column per level,
-    ``p ± se`` where ``stderr`` ``(S, L)`` is given, else ``p``."""
+    ``p ± se`` where ``stderr`` ``(S, L)`` is given, else ``p``. The bars of a magnitude (``|x|``) are escaped, so
+    that they do not split the header's cells."""
+    quantity = quantity.replace("|", r"\|")
     columns = [("t (s)", "{t:g}", "r")] + [(f"P({quantity} > {a:g})", f"{{p{j}}}", "r") for j, a in enumerate(levels)]
     p = np.asarray(probability)
     se = None if stderr is None else np.asarray(stderr)
