@@ -191,14 +191,11 @@ def _derivatives(scene: Scene, wrt, estimator) -> tuple:
         est = estimator
         if est is None:  # the likelihood ratio where it applies (no step, no 1/step variance), else differences
             est = CentralDifference()
-            if scene.model.dimension == 1:
-                try:
-                    LikelihoodRatio().check(scene, name)
-                    est = LikelihoodRatio()
-                except ValueError:
-                    pass
-        if isinstance(est, LikelihoodRatio) and scene.model.dimension != 1:
-            raise ValueError("LikelihoodRatio applies to one degree of freedom; use jdpim.CentralDifference()")
+            try:
+                LikelihoodRatio().check(scene, name)
+                est = LikelihoodRatio()
+            except ValueError:
+                pass
         est.check(scene, name)
         estimators[name] = est
     return tuple(values), values, estimators
@@ -225,12 +222,14 @@ def first_passage(
             ``var > level`` after every step (``estimate_error=True`` adds ``FirstPassage.grid_error``).
         wrt: parameter names (``jdpim.parameter_names(scene)``) to differentiate ``P`` with respect to.
         estimator: how, for every name of ``wrt``: ``None`` (the default) takes ``jdpim.LikelihoodRatio()`` for
-            drift parameters of one-degree-of-freedom scenes (``E[1 (S - Sbar)]`` with the score ``S`` of the
-            whole history; no step) and ``jdpim.CentralDifference()`` otherwise (``r``, ``D``, matrices,
-            constraints: two runs with common random numbers, the same seed or point set). Standard errors
-            (Monte Carlo) come from the per-path contributions. Path integration takes no estimator: it
-            differentiates its absorbed steps by ``jax.jacfwd`` (every parameter but the barrier), holding its
-            grid fixed.
+            drift parameters with one noise source (``E[1 (S - Sbar)]`` with the score ``S`` of the whole
+            history; no step), for several degrees of freedom those whose change of the acceleration lies along
+            the noise's direction (``damping[0,0]`` of a primary mass the noise drives), and
+            ``jdpim.CentralDifference()`` otherwise (``r``, ``D``, the gains, constraints, entries acting on
+            coordinates the noise does not drive: two runs with common random numbers, the same seed or point
+            set). Standard errors (Monte Carlo) come from the per-path contributions. Path integration takes no
+            estimator: it differentiates its absorbed steps by ``jax.jacfwd`` (every parameter but the barrier),
+            holding its grid fixed.
         replicates: DPIM only: ``R >= 2`` runs on independent randomised point sets of the method's size
             (:func:`jdpim.randomised_points`, seeds ``0 .. R - 1``), averaged, with the standard errors of the
             means from their spread (``R`` times the cost of one run). ``None``: one run on the method's points,

@@ -26,17 +26,19 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
 
-from .._models import Oscillator, VibroImpactOscillator
+from .._models import AbstractOscillator, Oscillator, VibroImpactOscillator
 from .._pytree import check_real
 from .._scene import get_parameter, set_parameter
 from .._warnings import SensitivityWarning as SensitivityWarning
 
 DRIFT_EXCLUDED = ("r", "barrier", "D")
+STDERR_WARN = 0.25  # relative L2 standard error above which a sampled derivative is flagged
 
 
 class AbstractEstimator:
@@ -221,26 +223,49 @@ class CentralDifference(AbstractEstimator):
 
 
 def drift_derivative(model, name: str, x, v):
-    """``d_theta b(x, v)`` with ``b = -g(x) - f(x, v)`` the deterministic acceleration (one path)."""
+    """``d_theta b(x, v)`` with ``b = -g(x) - f(x, v)`` the deterministic acceleration (one path).
+
+    One degree of freedom: ``x``, ``v`` scalars, a scalar result; several (``x``, ``v`` of shape ``(d,)``): the
+    derivative of the acceleration without noise, ``(d,)``.
+    """
     value = jnp.asarray(get_parameter(model, name), jnp.result_type(v))
 
     def b(p):
-        return set_parameter(model, name, p).acceleration(x, v, jnp.zeros((1,), jnp.result_type(v)))
+        changed = set_parameter(model, name, p)
+        if isinstance(model, AbstractOscillator):
+            return changed.acceleration(x, v, jnp.zeros((1,), jnp.result_type(v)))
+        return changed.state_acceleration(x, v, jnp.zeros((model.n_sources,), jnp.result_type(v)))
 
     return jax.jvp(b, (value,), (jnp.ones_like(value),))[1]
+
+
+def noise_direction(model, q, v):
+    """``g``, ``(d,)``: the acceleration per unit of the single noise source of a model of several degrees of
+    freedom (``M^-1 B[:, 0]``; the acceleration is affine in the noise)."""
+    dtype = jnp.result_type(v)
+
+    def a(xi):
+        return model.state_acceleration(q, v, xi)
+
+    return jax.jvp(a, (jnp.zeros((1,), dtype),), (jnp.ones((1,), dtype),))[1]
 
 
 @dataclasses.dataclass(frozen=True)
 class Score:
     """Per-step increments of the score sums (hashable, for ``jdpim._integrate.Sums``).
 
-    For each name: ``sum (d_theta b / h) dW`` and ``sum h d_v(d_theta b / h) dt``; then ``sum dW^2``.
+    For each name, with ``u = d_theta b / h`` the drift's change per unit of noise: ``sum u dW`` and
+    ``sum (h . grad_v u) dt``; then ``sum dW^2``. One degree of freedom: ``h`` the gain; several: ``h`` the
+    noise direction ``g`` (:func:`noise_direction`) and ``u = g . d_theta b / |g|^2``, exact where
+    ``d_theta b`` lies along ``g`` (:func:`check_likelihood_ratio`).
     """
 
     names: tuple[str, ...]
     dt: float
 
     def __call__(self, model, x, v, dw):
+        if not isinstance(model, AbstractOscillator):
+            return self._several(model, x, v, dw)
         x, v = x[0], v[0]  # one degree of freedom: the state's vectors have one entry
         h = model.gains(x, v)[0]
         out = []
@@ -253,10 +278,23 @@ class Score:
             out += [gv * dw[0], h * dgv * self.dt]
         return jnp.stack([*out, dw[0] ** 2])
 
+    def _several(self, model, q, v, dw):
+        g = noise_direction(model, q, v)
+        out = []
+        for name in self.names:
+
+            def u(v, name=name):
+                return jnp.dot(g, drift_derivative(model, name, q, v)) / jnp.dot(g, g)
+
+            uv, duv = jax.jvp(u, (v,), (g,))
+            out += [uv * dw[0], duv * self.dt]
+        return jnp.stack([*out, dw[0] ** 2])
+
 
 def check_likelihood_ratio(scene, name: str) -> None:
-    """Raise unless the score applies: one noise source, a drift parameter that leaves the gains alone."""
-    if name in DRIFT_EXCLUDED:
+    """Raise unless the score applies: one noise source, a drift parameter that leaves the gains alone and, for
+    several degrees of freedom, changes the acceleration only along the noise's direction."""
+    if name in DRIFT_EXCLUDED or name.startswith("constraints["):
         raise ValueError(f"LikelihoodRatio applies to drift parameters only, not {name!r}; use CentralDifference")
     if scene.n_sources != 1:
         raise ValueError(f"LikelihoodRatio needs one noise source, the scene has {scene.n_sources}")
@@ -264,12 +302,46 @@ def check_likelihood_ratio(scene, name: str) -> None:
         raise ValueError(f"parameter {name!r} is random in this scene; use CentralDifference")
     model = scene.model
     value = jnp.asarray(get_parameter(model, name), scene.float_dtype)
+    if isinstance(model, AbstractOscillator):
 
-    def gain(p):
-        return set_parameter(model, name, p).gains(jnp.asarray(0.3, value.dtype), jnp.asarray(0.7, value.dtype))
+        def gain(p):
+            return set_parameter(model, name, p).gains(jnp.asarray(0.3, value.dtype), jnp.asarray(0.7, value.dtype))
+
+    else:
+        d = model.dimension
+        q = 0.3 + 0.1 * jnp.arange(d, dtype=value.dtype)  # test states: the checks are structural
+        v = 0.7 - 0.2 * jnp.arange(d, dtype=value.dtype)
+
+        def gain(p):
+            return noise_direction(set_parameter(model, name, p), q, v)
 
     if jnp.any(jax.jvp(gain, (value,), (jnp.ones_like(value),))[1] != 0):
         raise ValueError(f"parameter {name!r} changes the noise gains: no likelihood ratio; use CentralDifference")
+    if not isinstance(model, AbstractOscillator):
+        g, db = noise_direction(model, q, v), drift_derivative(model, name, q, v)
+        off = db - g * jnp.dot(g, db) / jnp.dot(g, g)
+        if jnp.max(jnp.abs(off)) > 1e-5 * jnp.max(jnp.abs(db)):
+            driven = [c for c, gc in zip(model.coordinates, g, strict=False) if gc != 0]
+            raise ValueError(
+                f"parameter {name!r} changes the acceleration of coordinates the noise does not drive (it drives "
+                f"{driven}): no likelihood ratio; use CentralDifference"
+            )
+
+
+def warn_if_noisy(name: str, value, stderr, stacklevel: int) -> None:
+    """Warn (:class:`SensitivityWarning`) where the standard error of a sampled ``dp/d name`` exceeds
+    ``STDERR_WARN`` of its size (relative L2); ``stacklevel`` points the warning at the user's call."""
+    size, error = float(jnp.linalg.norm(value)), float(jnp.linalg.norm(stderr))
+    rel = error / size if size > 0 else (0.0 if error == 0 else math.inf)  # zero with no error: not noisy
+    if not rel < STDERR_WARN:
+        warnings.warn(
+            f"dp/d{name}: standard error {rel:.2g} of the value (relative L2): it falls like 1/sqrt(paths); "
+            f"5 % at stationarity takes about 1e5 paths or points for drift parameters and 3e5 for D at "
+            "bandwidth 0.1 (n_samples / n_points), a wider bandwidth, or method=jdpim.PathIntegration() "
+            "(one-degree-of-freedom scenes, no sampling error)",
+            SensitivityWarning,
+            stacklevel=stacklevel + 1,
+        )
 
 
 def noise_scaling_applies(scene) -> str | None:

@@ -48,6 +48,7 @@ from ._estimators import (
     SensitivityWarning,
     check_likelihood_ratio,
     noise_scaling_applies,
+    warn_if_noisy,
     window_of,
 )
 from ._path_integration import default_settings, grid_sensitivity, nominal_run
@@ -55,7 +56,6 @@ from ._several_dof import several_dof_sensitivity
 
 VARIABLES = ("x", "v", "xv")
 DEFAULT_PATHS = 100_000  # Monte Carlo paths of method=None where path integration does not apply: ~5 %
-STDERR_WARN = 0.25  # relative L2 standard error above which a result is flagged
 EXPLOSION = 1e3  # |theta dp/dtheta| / max p above which a pathwise result is flagged
 _CHUNK = 512
 
@@ -230,8 +230,10 @@ def sensitivity(
             ``omega``, ``D`` for :class:`VibroImpactOscillator`; keys of a dict ``Oscillator.params``).
         var: ``"x"``, ``"v"`` (marginal PDFs) or ``"xv"`` (joint PDF). Several degrees of freedom
             (:class:`jdpim.MDOFOscillator`): a coordinate name (``"x1"``, ``"v2"``) or a function of the state;
-            the estimator is then :class:`CentralDifference` (the only one; ``estimator="auto"`` picks it) by
-            Monte Carlo (default ``MonteCarlo(n_samples=DEFAULT_PATHS)``) or DPIM.
+            the estimator is then :class:`CentralDifference` (``estimator="auto"`` picks it) or, for drift
+            parameters whose change of the acceleration lies along the single noise source's direction,
+            :class:`LikelihoodRatio` (whole history unless given a ``window``), by Monte Carlo (default
+            ``MonteCarlo(n_samples=DEFAULT_PATHS)``) or DPIM.
         grid: evaluation grid, 1-D for ``"x"``/``"v"``, a pair ``(x_grid, v_grid)`` for ``"xv"``. Keep
             ``x`` nodes off the barrier when differentiating with respect to ``barrier``.
         t: a saved time of the scene (default: the last one); leave it out for a stationary density.
@@ -356,16 +358,7 @@ def sampled_sensitivity(scene: Scene, method, query: Query):
         value.update(v)
         stderr.update(e)
         for name in rest:
-            rel = float(jnp.linalg.norm(e[name]) / jnp.maximum(jnp.linalg.norm(v[name]), 1e-300))
-            if not rel < STDERR_WARN:
-                warnings.warn(
-                    f"dp/d{name}: standard error {rel:.2g} of the value (relative L2): it falls like 1/sqrt(paths); "
-                    f"5 % at stationarity takes about 1e5 paths or points for drift parameters and 3e5 for D at "
-                    "bandwidth 0.1 (n_samples / n_points), a wider bandwidth, or method=jdpim.PathIntegration() "
-                    "(one-degree-of-freedom scenes, no sampling error)",
-                    SensitivityWarning,
-                    stacklevel=4,
-                )
+            warn_if_noisy(name, v[name], e[name], stacklevel=4)
     return value, stderr, estimators
 
 
@@ -523,7 +516,7 @@ def _centred_scores(scene, settings: dict, sums, w, times: list, k_t: int, start
     ``sums``: ``(N, len(times), 2 len(settings) + 1)`` running sums of :class:`Score` after the steps ``times``;
     ``k_t``: the step of ``t``; ``starts``: ``{name: step}`` where each window starts (0: the whole history).
     """
-    D = jnp.asarray(scene.noise.D, scene.float_dtype)
+    D = jnp.reshape(jnp.asarray(scene.noise.D, scene.float_dtype), ())  # one source: a number, or a (1, 1) matrix
     total = sums[:, times.index(k_t)]
     q = jnp.sum(w * total[:, -1]) / jnp.sum(w) / max(k_t, 1)
     frac = 1.0 - q / (2.0 * D * scene.dt)

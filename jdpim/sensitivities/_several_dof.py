@@ -1,22 +1,28 @@
-"""Sensitivities of the densities of systems with several degrees of freedom: central differences.
+"""Sensitivities of the densities of systems with several degrees of freedom: central differences and the
+likelihood ratio.
 
-The paths are rerun at two values of the parameter with the same random inputs (the same seed, or the same
-DPIM points), so the per-path differences of the kernel estimate have a small variance; the kernel width is
-held at its value for the nominal run. Pathwise derivatives are not offered: through impacts between masses
-they are not validated (see ``jdpim.methods._ad_guard``).
+Central differences rerun the paths at two values of the parameter with the same random inputs (the same
+seed, or the same DPIM points), so the per-path differences of the kernel estimate have a small variance; the
+kernel width is held at its value for the nominal run. The likelihood ratio runs the paths once, tracking the
+Girsanov score of each drift parameter whose change of the acceleration lies along the noise's direction
+(``jdpim.LikelihoodRatio``; :func:`._estimators.check_likelihood_ratio`). Pathwise derivatives are not
+offered: through impacts between masses they are not validated (see ``jdpim.methods._ad_guard``).
 """
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 
+from .._integrate import Sums
 from .._pytree import check_real
 from .._scene import Scene, get_parameter, with_parameters
 from ..methods._base import AbstractMethod, solve
 from ..methods._monte_carlo import MonteCarlo
 from ..methods._path_integration import PathIntegration
+from ..methods._paths import run_paths
 from ..results import _density
-from ._estimators import CentralDifference
+from ._estimators import CentralDifference, LikelihoodRatio, Score, warn_if_noisy, window_of
 
 
 def several_dof_sensitivity(
@@ -26,7 +32,9 @@ def several_dof_sensitivity(
     if isinstance(method, PathIntegration):
         raise ValueError("path integration takes one degree of freedom; use jdpim.MonteCarlo() or jdpim.DPIM()")
     method = MonteCarlo(n_samples=100_000) if method is None else method
-    estimators = {name: _central_difference(name, estimator) for name in wrt}
+    estimators = {name: _estimator(name, estimator) for name in wrt}
+    for name, est in estimators.items():
+        est.check(scene, name)
     if not (callable(var) or var in scene.model.coordinates):
         raise ValueError(
             f"var must be one of the coordinates {scene.model.coordinates} or a function of the state, got {var!r}"
@@ -42,7 +50,12 @@ def several_dof_sensitivity(
         check_real("bandwidth", bandwidth, low=0.0, low_open=True)
     reflect = nominal._reflect(var)
     value, stderr = {}, {}
+    scored = {n: e for n, e in estimators.items() if isinstance(e, LikelihoodRatio)}
+    if scored:
+        value, stderr = _likelihood_ratio(scene, scored, var, grid, t, method, bandwidth, reflect)
     for name, est in estimators.items():
+        if name in scored:
+            continue
         nominal_value = scene.noise.D if name == "D" else get_parameter(scene.model, name)
         lo, hi = est.pair(name, float(nominal_value))
         runs = [solve(with_parameters(scene, {name: p}), method) for p in (lo, hi)]
@@ -50,16 +63,53 @@ def several_dof_sensitivity(
             runs[0].samples(var, t), runs[1].samples(var, t), nominal.weights, grid, bandwidth, reflect
         )
         value[name], stderr[name] = d / (hi - lo), se / (hi - lo)
+    for name in wrt:
+        warn_if_noisy(name, value[name], stderr[name], stacklevel=3)
     return value, stderr, estimators, method
 
 
-def _central_difference(name: str, estimator) -> CentralDifference:
+def _likelihood_ratio(scene: Scene, settings: dict, var, grid, t: float, method, sigma: float, reflect):
+    """``(value, stderr)`` dicts of ``sum_i w_i K(y - Y_i) (S_i - Sbar)`` for each parameter of ``settings``
+    (``{name: LikelihoodRatio}``), from one run of the paths tracking the score sums."""
+    from ._sensitivity import _centred_scores, _finite_weights, _moments
+
+    dt = scene.dt
+    k_t = int(round(t / dt))
+    starts = {n: max(0, k_t - int(round(min(window_of(e, scene.model), t) / dt))) for n, e in settings.items()}
+    times = sorted({k_t} | {k for k in starts.values() if k > 0})
+    run_scene = scene.replace(save_at=tuple(k * dt for k in times))
+    rows, weights, chunk = method.inputs(scene)
+    states, sums = run_paths(
+        run_scene,
+        rows,
+        kind=method.name,
+        chunk_size=chunk,
+        devices=method.devices,
+        track=Sums(Score(tuple(settings), dt)),
+    )
+    at = states[:, times.index(k_t)]
+    y = jax.vmap(var)(at) if callable(var) else at[:, scene.model.coordinates.index(var)]
+    w, (_, y) = _finite_weights(weights, jnp.concatenate([at, sums[:, times.index(k_t)]], axis=1), y)
+    scores = _centred_scores(scene, settings, sums, w, times, k_t, starts)
+    grid_flat = jnp.atleast_1d(grid).astype(y.dtype)
+
+    def contribution(y, s):
+        return _density._kernel_matrix(grid_flat, y, sigma, reflect).T * s[:, None]
+
+    value, stderr = {}, {}
+    for name in settings:
+        d, se = _moments(contribution, (y, scores[name]), w)
+        value[name], stderr[name] = d.reshape(grid.shape), se.reshape(grid.shape)
+    return value, stderr
+
+
+def _estimator(name: str, estimator):
     est = estimator.get(name, "auto") if isinstance(estimator, dict) else estimator
     if isinstance(est, str) and est == "auto":
         return CentralDifference()
-    if not isinstance(est, CentralDifference):
+    if not isinstance(est, (CentralDifference, LikelihoodRatio)):
         raise ValueError(
-            f"estimator for {name!r}: several degrees of freedom take CentralDifference only (pathwise derivatives "
-            f"through impacts between masses are not validated; the likelihood ratio takes one), got {est!r}"
+            f"estimator for {name!r}: several degrees of freedom take CentralDifference or LikelihoodRatio (pathwise "
+            f"derivatives through impacts between masses are not validated), got {est!r}"
         )
     return est
