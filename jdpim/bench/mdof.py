@@ -11,6 +11,13 @@ reference at ``dt = 0.0025`` with four times the paths; the sampling floor is th
 Carlo runs of the same size at the reference's step (independent seeds), so an error near the floor is
 sampling, and above it the time step.
 
+Time-step error with common random numbers: Monte Carlo at every ``dt`` (float64) driven by the same continuous
+excitation, the same spectral lines and time origin for every step (a period and an offset that are whole
+numbers of the coarsest half-step), so that the paths at two steps differ only by the step, against
+``dt = DT_REF / 2``: the RMS over paths of the differences of ``x1`` and ``x2 - x1`` (strong error) and the
+differences of ``E[x1^2]`` and ``E[(x2 - x1)^2]`` with their standard errors (weak error), resolved with a few
+thousand paths where independent runs are not.
+
 Speed: Monte Carlo of the impact damper and of the reference one-degree-of-freedom scene (alpha = gamma = 0.03,
 r = 0.98, D = 0.03), the same number of paths and steps, timed with :func:`.timing.timed` (AOT compile,
 warm-up, repeats, median); path-steps per second per degree of freedom.
@@ -19,8 +26,10 @@ warm-up, repeats, median); path-steps per second per degree of freedom.
 from __future__ import annotations
 
 import json
+import math
 import pathlib
 
+import jax
 import numpy as np
 
 from .. import metrics
@@ -90,6 +99,42 @@ def convergence(t_end: float, n: int, log=print) -> list[dict]:
     return rows
 
 
+def common_excitation(t_end: float) -> SpectralRepresentation:
+    """The excitation of :func:`common_noise_convergence`: the same lines and time origin at every step of ``DTS``."""
+    coarsest = max(DTS) / 2.0  # the coarsest half-step; the finer ones divide it
+    offset = 64 * coarsest  # 1.28 s: ten periods of the cutoff and a whole number of every half-step
+    period = coarsest * 2 ** math.ceil(math.log2((t_end + 2 * offset) / coarsest))
+    return SpectralRepresentation(cutoff=CUTOFF, offset=offset, dw=2 * math.pi / period)
+
+
+def common_noise_convergence(t_end: float, n: int, log=print) -> list[dict]:
+    """Strong and weak time-step errors at ``t_end / 4`` and ``t_end`` against ``DT_REF / 2``, common random numbers."""
+    times = (t_end / 4, t_end)
+    dts = (*DTS, DT_REF, DT_REF / 2)
+    states = {}
+    with jax.enable_x64(True):
+        for dt in dts:
+            scene = damper_scene(t_end, dt).replace(excitation=common_excitation(t_end), save_at=times, dtype="float64")
+            res, timing = timed("monte_carlo", scene, n, seed=3, repeats=1, warmup=False)
+            states[dt] = np.asarray(res.states, np.float64)
+            log(f"dt = {dt}: {timing.median_s:.1f} s, {int(np.sum(res.n_nonfinite()))} non-finite")
+    ref = states[dts[-1]]
+    rows = []
+    for i, t in enumerate(times):
+        for dt in dts[:-1]:
+            a, b = states[dt][:, i], ref[:, i]
+            gap_a, gap_b = a[:, 1] - a[:, 0], b[:, 1] - b[:, 0]
+            row = {"t": t, "dt": dt}
+            row["rms_x1"] = float(f"{np.sqrt(np.mean((a[:, 0] - b[:, 0]) ** 2)):.3g}")
+            row["rms_gap"] = float(f"{np.sqrt(np.mean((gap_a - gap_b) ** 2)):.3g}")
+            for name, d in (("x1^2", a[:, 0] ** 2 - b[:, 0] ** 2), ("gap^2", gap_a**2 - gap_b**2)):
+                row[f"dE[{name}]"] = float(f"{d.mean():.3g}")
+                row[f"se[{name}]"] = float(f"{d.std() / math.sqrt(n):.2g}")
+            rows.append(row)
+            log(str(row))
+    return rows
+
+
 def speed(t_end: float, n: int, repeats: int, log=print) -> list[dict]:
     """Path-steps per second per degree of freedom: the impact damper against the reference scene."""
     reference = Scene(VibroImpactOscillator(), noise=WhiteNoise(D=0.03), t_end=t_end, dt=0.01)
@@ -117,16 +162,20 @@ def _table(rows: list[dict]) -> str:
 
 
 def run_mdof(out: pathlib.Path, *, quick: bool = False, log=print) -> list[str]:
-    """Both parts; ``quick``: t_end 20 s, 4000 paths, speed at 1e4 paths and t = 50 (else 50 s, 2e4; 1e5, 200)."""
+    """All three parts; ``quick``: t_end 20 s, 4000 paths, speed at 1e4 paths and t = 50 (else 50 s, 2e4; 1e5, 200)."""
     t_end, n = (20.0, 4000) if quick else (50.0, 20_000)
     conv = convergence(t_end, n, log=log)
+    common = common_noise_convergence(t_end, n, log=log)
     fast = speed(50.0, 10_000, 3, log=log) if quick else speed(200.0, 100_000, 3, log=log)
     out.mkdir(parents=True, exist_ok=True)
     stem = "mdof_quick" if quick else "mdof"
-    (out / f"{stem}.json").write_text(json.dumps({"convergence": conv, "speed": fast}, indent=1))
+    data = {"convergence": conv, "common_noise_convergence": common, "speed": fast}
+    (out / f"{stem}.json").write_text(json.dumps(data, indent=1))
     text = (
         f"Impact damper at t = {t_end:g} s: L1 distances to a Monte Carlo reference ({4 * n} paths, dt = {DT_REF})\n\n"
         + _table(conv)
+        + f"\n\nTime-step errors with common random numbers ({n} paths, float64) against dt = {DT_REF / 2}\n\n"
+        + _table(common)
         + "\n\nMonte Carlo speed, impact damper against the reference scene (same paths and steps)\n\n"
         + _table(fast)
         + "\n"
