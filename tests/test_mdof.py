@@ -329,6 +329,11 @@ def test_sensitivity_of_several_degrees_of_freedom_takes_central_differences_or_
     )
     with pytest.raises(ValueError, match="needs one noise source, the scene has 2"):
         jdpim.sensitivity(two, ("stiffness[0,0]",), "x1", grid, estimator=lr)
+    with pytest.raises(ValueError, match="the noise intensity D is 0: no likelihood ratio"):
+        jdpim.sensitivity(scene.replace(noise=jdpim.WhiteNoise(D=0.0)), ("stiffness[0,0]",), "x1", grid, estimator=lr)
+    silent = scene.replace(model=scene.model.replace(gains=((0.0,), (0.0,))))
+    with pytest.raises(ValueError, match="the noise gains are zero: no likelihood ratio"):
+        jdpim.sensitivity(silent, ("stiffness[0,0]",), "x1", grid, estimator=lr)
     mc = jdpim.MonteCarlo(n_samples=64, seed=0)
     dp = jdpim.sensitivity(scene, ("constraints[0].r",), "x1", grid, method=mc, bandwidth=0.05)
     assert np.all(np.isfinite(np.asarray(dp.value["constraints[0].r"])))  # the pair (0.98, 1) stays in [0, 1]

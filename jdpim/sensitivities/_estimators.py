@@ -31,9 +31,10 @@ from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from .._models import AbstractOscillator, Oscillator, VibroImpactOscillator
-from .._pytree import check_real
+from .._pytree import check_real, concrete
 from .._scene import get_parameter, set_parameter
 from .._warnings import SensitivityWarning as SensitivityWarning
 
@@ -300,6 +301,9 @@ def check_likelihood_ratio(scene, name: str) -> None:
         raise ValueError(f"LikelihoodRatio needs one noise source, the scene has {scene.n_sources}")
     if any(n == name for n, _ in scene.random):
         raise ValueError(f"parameter {name!r} is random in this scene; use CentralDifference")
+    D = concrete(scene.noise.D)
+    if D is not None and not np.any(D != 0):
+        raise ValueError("the noise intensity D is 0: no likelihood ratio (its score divides by D)")
     model = scene.model
     value = jnp.asarray(get_parameter(model, name), scene.float_dtype)
     if isinstance(model, AbstractOscillator):
@@ -319,6 +323,8 @@ def check_likelihood_ratio(scene, name: str) -> None:
         raise ValueError(f"parameter {name!r} changes the noise gains: no likelihood ratio; use CentralDifference")
     if not isinstance(model, AbstractOscillator):
         g, db = noise_direction(model, q, v), drift_derivative(model, name, q, v)
+        if not jnp.any(g != 0):
+            raise ValueError("the noise gains are zero: no likelihood ratio; use CentralDifference")
         off = db - g * jnp.dot(g, db) / jnp.dot(g, g)
         if jnp.max(jnp.abs(off)) > 1e-5 * jnp.max(jnp.abs(db)):
             driven = [c for c, gc in zip(model.coordinates, g, strict=False) if gc != 0]
