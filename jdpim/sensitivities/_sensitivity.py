@@ -471,13 +471,9 @@ def _sampled(scene, names, estimators, query: Query, method, rows, weights, chun
 
 def _context(scene, names, estimators, query: Query, method, rows, weights, chunk) -> PathContext:
     """Run the common paths once (accumulating the score sums ``names``' estimators need) up to ``query.t``."""
-    dt = scene.dt
     settings = _score_settings(scene, names, estimators)
-    k_t = int(round(query.t / dt))
-    starts = {n: max(0, k_t - int(round(min(window_of(e, scene.model), query.t) / dt))) for n, e in settings.items()}
-    times = sorted({k_t} | {k for k in starts.values() if k > 0})
-    run_scene = scene.replace(save_at=tuple(k * dt for k in times))
-    score = Sums(Score(tuple(settings), dt)) if settings else None
+    k_t, starts, times, run_scene = score_windows(scene, settings, query.t)
+    score = Sums(Score(tuple(settings), scene.dt)) if settings else None
     out = run_paths(run_scene, rows, kind=method, chunk_size=chunk, track=score)
     states, sums = out if score is not None else (out, None)
     it = times.index(k_t)
@@ -499,6 +495,17 @@ def _context(scene, names, estimators, query: Query, method, rows, weights, chun
         method=method,
         chunk=chunk,
     )
+
+
+def score_windows(scene, settings: dict, t: float):
+    """``(k_t, starts, times, run_scene)`` of a run that tracks the scores of ``settings`` up to ``t``: the step of
+    ``t``, ``{name: step}`` where each window starts (0: the whole history), the steps to save (``t`` and the
+    windows' starts) and ``scene`` saving at them."""
+    dt = scene.dt
+    k_t = int(round(t / dt))
+    starts = {n: max(0, k_t - int(round(min(window_of(e, scene.model), t) / dt))) for n, e in settings.items()}
+    times = sorted({k_t} | {k for k in starts.values() if k > 0})
+    return k_t, starts, times, scene.replace(save_at=tuple(k * dt for k in times))
 
 
 def _score_settings(scene, names, estimators) -> dict:

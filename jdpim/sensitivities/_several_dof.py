@@ -22,7 +22,7 @@ from ..methods._monte_carlo import MonteCarlo
 from ..methods._path_integration import PathIntegration
 from ..methods._paths import run_paths
 from ..results import _density
-from ._estimators import CentralDifference, LikelihoodRatio, Score, warn_if_noisy, window_of
+from ._estimators import CentralDifference, LikelihoodRatio, Score, warn_if_noisy
 
 
 def several_dof_sensitivity(
@@ -71,13 +71,9 @@ def several_dof_sensitivity(
 def _likelihood_ratio(scene: Scene, settings: dict, var, grid, t: float, method, sigma: float, reflect):
     """``(value, stderr)`` dicts of ``sum_i w_i K(y - Y_i) (S_i - Sbar)`` for each parameter of ``settings``
     (``{name: LikelihoodRatio}``), from one run of the paths tracking the score sums."""
-    from ._sensitivity import _centred_scores, _finite_weights, _moments
+    from ._sensitivity import _centred_scores, _finite_weights, _moments, score_windows
 
-    dt = scene.dt
-    k_t = int(round(t / dt))
-    starts = {n: max(0, k_t - int(round(min(window_of(e, scene.model), t) / dt))) for n, e in settings.items()}
-    times = sorted({k_t} | {k for k in starts.values() if k > 0})
-    run_scene = scene.replace(save_at=tuple(k * dt for k in times))
+    k_t, starts, times, run_scene = score_windows(scene, settings, t)
     rows, weights, chunk = method.inputs(scene)
     states, sums = run_paths(
         run_scene,
@@ -85,7 +81,7 @@ def _likelihood_ratio(scene: Scene, settings: dict, var, grid, t: float, method,
         kind=method.name,
         chunk_size=chunk,
         devices=method.devices,
-        track=Sums(Score(tuple(settings), dt)),
+        track=Sums(Score(tuple(settings), scene.dt)),
     )
     at = states[:, times.index(k_t)]
     y = jax.vmap(var)(at) if callable(var) else at[:, scene.model.coordinates.index(var)]
