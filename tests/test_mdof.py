@@ -158,6 +158,33 @@ def test_one_degree_of_freedom_as_mdof_reproduces_the_reference_scene():
         assert np.all(np.abs(d) > 4 * se)  # at t = 10 s (at t = 2 s no path has passed yet)
 
 
+def test_slow_impacts_mirrored_trade_a_little_accuracy_for_time():
+    """``ImpactRule(mirror_below=v)`` mirrors the crossings slower than ``v`` instead of locating them: above every
+    speed it is the mirror rule, bit for bit; at 0.01 on the impact damper the paths stay within 1e-3 of the
+    located ones (common random numbers; measured 3.0e-4 RMS of x1 at t = 2.5 and 5 s, 1.6e-4 with 2000 paths),
+    a sixth of the mirror rule's distance (1.7e-3) or less, and every saved state is admissible."""
+    scene = jdpim.Scene(jdpim.impact_damper(), noise=jdpim.WhiteNoise(D=0.01), t_end=5.0, dt=0.01, save_at=(2.5, 5.0))
+    mc = jdpim.MonteCarlo(n_samples=200, seed=3)
+    run = {
+        name: np.asarray(jdpim.solve(scene.replace(impacts=rule), mc).states)
+        for name, rule in (
+            ("locate", jdpim.ImpactRule()),
+            ("slow", jdpim.ImpactRule(mirror_below=0.01)),
+            ("all", jdpim.ImpactRule(mirror_below=1e9)),
+            ("mirror", jdpim.ImpactRule(method="mirror")),
+        )
+    }
+    np.testing.assert_array_equal(run["all"], run["mirror"])
+
+    def rms(a, b):
+        return float(np.sqrt(np.mean((a[..., 0] - b[..., 0]) ** 2)))
+
+    assert 0 < rms(run["slow"], run["locate"]) < 1e-3
+    assert rms(run["slow"], run["locate"]) < rms(run["mirror"], run["locate"]) / 4
+    gap = run["slow"][..., 1] - run["slow"][..., 0]
+    assert np.all(np.abs(gap) <= 0.1 + 1e-6)
+
+
 def test_hard_cases_stay_finite_and_admissible():
     """An impact damper: a light mass (0.05) in a clearance of +-0.05 around a primary mass, r = 0.3 (chattering),
     stiff coupling (k = 400 on the light mass: h omega = 0.9 at dt = 0.01), a wall hit in the same steps: finite

@@ -83,6 +83,7 @@ CONSTRUCTORS = {
     "impact-method": (lambda: jdpim.ImpactRule(method="flip"), r"method must be 'locate' or 'mirror', got 'flip'"),
     "max_impacts": (lambda: jdpim.ImpactRule(max_impacts=0), r"max_impacts must be an integer >= 1, got 0"),
     "stick_velocity": (lambda: jdpim.ImpactRule(stick_velocity=-1.0), r"stick_velocity must lie in \[0, inf\)"),
+    "mirror_below": (lambda: jdpim.ImpactRule(mirror_below=-1.0), r"mirror_below must lie in \[0, inf\)"),
     "max_substeps": (lambda: jdpim.Substeps(max_substeps=0), r"max_substeps must be an integer >= 1, got 0"),
     "substep-limit": (lambda: jdpim.Substeps(limit=3.0), r"limit must lie in \(0, 2\.785\), got 3\.0"),
     "cutoff": (lambda: jdpim.SpectralRepresentation(cutoff=0.0), r"cutoff must lie in \(0, inf\), got 0\.0"),

@@ -18,6 +18,10 @@ numbers of the coarsest half-step), so that the paths at two steps differ only b
 differences of ``E[x1^2]`` and ``E[(x2 - x1)^2]`` with their standard errors (weak error), resolved with a few
 thousand paths where independent runs are not.
 
+Mirroring the slow impacts: the damper with ``ImpactRule(mirror_below=v)`` for several ``v`` and with the mirror
+rule, timed, and its error against every impact located (common random numbers, float64): ``E[x1^2]`` with its
+standard error and the RMS of ``x1``'s difference at ``t_end``.
+
 Speed: Monte Carlo of the impact damper and of the reference one-degree-of-freedom scene (alpha = gamma = 0.03,
 r = 0.98, D = 0.03), the same number of paths and steps, timed with :func:`.timing.timed` (AOT compile,
 warm-up, repeats, median); path-steps per second per degree of freedom.
@@ -34,6 +38,7 @@ import numpy as np
 
 from .. import metrics
 from .._excitation import SpectralRepresentation
+from .._integrate import ImpactRule
 from .._models import VibroImpactOscillator
 from .._noise import WhiteNoise
 from .._scene import Scene
@@ -135,6 +140,41 @@ def common_noise_convergence(t_end: float, n: int, log=print) -> list[dict]:
     return rows
 
 
+SLOW_IMPACTS = (1e-3, 1e-2, 3e-2, 0.1)  # the mirror_below values of slow_impacts, units of x per s
+
+
+def slow_impacts(t_end: float, n: int, t_speed: float, n_speed: int, repeats: int, log=print) -> list[dict]:
+    """Time (``n_speed`` paths to ``t_speed``) and error at ``t_end`` (``n`` paths, against every impact located) of
+    the damper with each ``mirror_below`` of ``SLOW_IMPACTS`` and with the mirror rule, at dt = 0.01."""
+    rules = [("locate", ImpactRule())]
+    rules += [(f"mirror_below={v:g}", ImpactRule(mirror_below=v)) for v in SLOW_IMPACTS]
+    rules += [("mirror", ImpactRule(method="mirror"))]
+    rows, states = [], {}
+    for name, rule in rules:
+        scene = damper_scene(t_speed, 0.01).replace(impacts=rule)
+        _, timing = timed("monte_carlo", scene, n_speed, repeats=repeats, warmup=False)
+        rows.append(
+            {
+                "rule": name,
+                "median_s": round(timing.median_s, 3),
+                "path_steps_per_s": float(f"{timing.path_steps_per_s:.3g}"),
+            }
+        )
+        with jax.enable_x64(True):
+            exact = damper_scene(t_end, 0.01).replace(impacts=rule, dtype="float64")
+            res, _ = timed("monte_carlo", exact, n, seed=3, repeats=1, warmup=False)
+            states[name] = np.asarray(res.states, np.float64)[:, -1]
+        log(str(rows[-1]))
+    ref = states["locate"][:, 0]
+    for row in rows[1:]:
+        x1 = states[row["rule"]][:, 0]
+        d = x1**2 - ref**2
+        row["dE[x1^2]"] = float(f"{d.mean():.3g}")
+        row["se"] = float(f"{d.std() / math.sqrt(n):.2g}")
+        row["rms_x1"] = float(f"{np.sqrt(np.mean((x1 - ref) ** 2)):.3g}")
+    return rows
+
+
 def speed(t_end: float, n: int, repeats: int, log=print) -> list[dict]:
     """Path-steps per second per degree of freedom: the impact damper against the reference scene."""
     reference = Scene(VibroImpactOscillator(), noise=WhiteNoise(D=0.03), t_end=t_end, dt=0.01)
@@ -162,20 +202,24 @@ def _table(rows: list[dict]) -> str:
 
 
 def run_mdof(out: pathlib.Path, *, quick: bool = False, log=print) -> list[str]:
-    """All three parts; ``quick``: t_end 20 s, 4000 paths, speed at 1e4 paths and t = 50 (else 50 s, 2e4; 1e5, 200)."""
+    """Every part; ``quick``: t_end 20 s, 4000 paths, speed at 1e4 paths and t = 50 (else 50 s, 2e4; 1e5, 200)."""
     t_end, n = (20.0, 4000) if quick else (50.0, 20_000)
     conv = convergence(t_end, n, log=log)
     common = common_noise_convergence(t_end, n, log=log)
+    slow = slow_impacts(t_end, n, 50.0, 10_000, 3, log=log)
     fast = speed(50.0, 10_000, 3, log=log) if quick else speed(200.0, 100_000, 3, log=log)
     out.mkdir(parents=True, exist_ok=True)
     stem = "mdof_quick" if quick else "mdof"
-    data = {"convergence": conv, "common_noise_convergence": common, "speed": fast}
+    data = {"convergence": conv, "common_noise_convergence": common, "slow_impacts": slow, "speed": fast}
     (out / f"{stem}.json").write_text(json.dumps(data, indent=1))
     text = (
         f"Impact damper at t = {t_end:g} s: L1 distances to a Monte Carlo reference ({4 * n} paths, dt = {DT_REF})\n\n"
         + _table(conv)
         + f"\n\nTime-step errors with common random numbers ({n} paths, float64) against dt = {DT_REF / 2}\n\n"
         + _table(common)
+        + f"\n\nMirroring the slow impacts: time of 10000 paths to t = 50 s; error at t = {t_end:g} s ({n} paths, "
+        + "float64) against every impact located\n\n"
+        + _table(slow)
         + "\n\nMonte Carlo speed, impact damper against the reference scene (same paths and steps)\n\n"
         + _table(fast)
         + "\n"
