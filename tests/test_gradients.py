@@ -237,6 +237,10 @@ def test_sensitivity_rejects_bad_arguments(tiny):
     scene, points = tiny
     with pytest.raises(ValueError, match="unknown parameter"):
         jdpim.sensitivity(scene, ("mass",), "x", V_TINY + 1.0, method=jdpim.DPIM(points=points))
+    with pytest.raises(ValueError, match=r"unknown parameter\(s\) \['mass'\];"):  # one name, not its letters
+        jdpim.sensitivity(scene, "mass", "x", V_TINY + 1.0, method=jdpim.DPIM(points=points))
+    with pytest.raises(TypeError, match="grid must be numbers: a 1-D array"):
+        jdpim.sensitivity(scene, ("alpha",), "x", ["a", "b"], method=jdpim.DPIM(points=points))
     with pytest.raises(ValueError, match="var must be"):
         jdpim.sensitivity(scene, ("alpha",), "y", V_TINY, method=jdpim.DPIM(points=points))
     with pytest.raises(ValueError, match="is None"):

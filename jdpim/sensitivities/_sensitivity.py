@@ -31,7 +31,7 @@ import jax.numpy as jnp
 
 from .._integrate import Sums
 from .._models import AbstractOscillator
-from .._pytree import check_real
+from .._pytree import check_real, concrete, real_array
 from .._scene import Scene, parameter_names, parameter_value, with_parameters
 from ..methods._base import AbstractMethod
 from ..methods._monte_carlo import MonteCarlo
@@ -226,8 +226,9 @@ def sensitivity(
 
     Args:
         scene: the scene; its parameter values are the point of differentiation.
-        wrt: parameter names (see :func:`jdpim.parameter_names`: ``alpha``, ``gamma``, ``r``, ``barrier``,
-            ``omega``, ``D`` for :class:`VibroImpactOscillator`; keys of a dict ``Oscillator.params``).
+        wrt: a parameter name or a sequence of them (see :func:`jdpim.parameter_names`: ``alpha``, ``gamma``,
+            ``r``, ``barrier``, ``omega``, ``D`` for :class:`VibroImpactOscillator`; keys of a dict
+            ``Oscillator.params``).
         var: ``"x"``, ``"v"`` (marginal PDFs) or ``"xv"`` (joint PDF). Several degrees of freedom
             (:class:`jdpim.MDOFOscillator`): a coordinate name (``"x1"``, ``"v2"``) or a function of the state;
             the estimator is then :class:`CentralDifference` (``estimator="auto"`` picks it) or, for drift
@@ -293,7 +294,7 @@ def sensitivity(
         raise ValueError(f"bandwidth must be None, 'adaptive' or a number, got {bandwidth!r}")
     if bandwidth is not None and not isinstance(bandwidth, str):
         check_real("bandwidth", bandwidth, low=0.0, low_open=True)
-    wrt = tuple(wrt)
+    wrt = (wrt,) if isinstance(wrt, str) else tuple(wrt)  # one name, as first_passage takes it
     if not wrt:
         raise ValueError("wrt must name at least one parameter")
     bad = sorted(set(wrt) - set(parameter_names(scene)))
@@ -301,6 +302,9 @@ def sensitivity(
         raise ValueError(f"unknown parameter(s) {bad}; choose from {list(parameter_names(scene))}")
     if grid is None:
         raise ValueError("grid is required")
+    for axis in grid if var == "xv" and isinstance(grid, (tuple, list)) else (grid,):
+        if isinstance(axis, (str, bytes)) or concrete(axis) is not None:
+            real_array("grid", axis, "numbers: a 1-D array, or a pair of them for var='xv'")
     if getattr(method, "stationary", False):
         if t is not None:
             raise ValueError(f"t={t!r} with a stationary method: the stationary density has no time; leave t out")
