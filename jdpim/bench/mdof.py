@@ -43,6 +43,7 @@ from .._models import VibroImpactOscillator
 from .._noise import WhiteNoise
 from .._scene import Scene
 from ..systems import impact_damper
+from .speed import _table as table_lines
 from .timing import timed
 
 CUTOFF = 50.0  # rad/s: w_u dt = 2 at dt = 0.04
@@ -195,10 +196,8 @@ def speed(t_end: float, n: int, repeats: int, log=print) -> list[dict]:
 
 
 def _table(rows: list[dict]) -> str:
-    keys = list(dict.fromkeys(k for r in rows for k in r))
-    lines = ["| " + " | ".join(keys) + " |", "|" + "---|" * len(keys)]
-    lines += ["| " + " | ".join("" if r.get(k) is None else str(r[k]) for k in keys) + " |" for r in rows]
-    return "\n".join(lines)
+    """A Markdown table of ``rows`` in the union of their keys."""
+    return "\n".join(table_lines(rows, list(dict.fromkeys(k for r in rows for k in r))))
 
 
 def run_mdof(out: pathlib.Path, *, quick: bool = False, log=print) -> list[str]:

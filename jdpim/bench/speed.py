@@ -286,8 +286,9 @@ def numpy_baseline(dtype: str, n_steps: int, *, quick: bool, log=print) -> list[
 
 
 def _table(rows: list[dict], cols: list[str]) -> list[str]:
+    """Markdown lines of ``rows`` in the columns ``cols``; a missing or ``None`` value is an empty cell."""
     lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
-    return lines + ["| " + " | ".join(str(r.get(c, "")) for c in cols) + " |" for r in rows]
+    return lines + ["| " + " | ".join("" if r.get(c) is None else str(r[c]) for c in cols) + " |" for r in rows]
 
 
 def run_speed(out: pathlib.Path, *, quick: bool = False, log=print) -> list[str]:
