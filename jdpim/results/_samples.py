@@ -14,6 +14,14 @@ from . import _density
 from ._base import COORDINATES, AbstractResult
 
 
+def reflection(bounds, var):
+    """Where the kernel of ``var`` is reflected, given a model's ``bounds()`` (the barrier of ``x``, or
+    ``{coordinate: lower bound}``): the bound of a coordinate ``var``, else ``None``."""
+    if isinstance(bounds, dict):
+        return bounds.get(var) if isinstance(var, str) else None
+    return bounds if var == "x" else None
+
+
 @pytree_dataclass
 class Result(AbstractResult):
     """Weighted response states of ``N`` paths (DPIM points or Monte Carlo samples).
@@ -59,9 +67,7 @@ class Result(AbstractResult):
 
     def _reflect(self, var):
         """Where the kernel of ``var`` is reflected (the barrier of ``x``, a bounded coordinate), or ``None``."""
-        if isinstance(self.barrier, dict):
-            return self.barrier.get(var) if isinstance(var, str) else None
-        return self.barrier if var == "x" else None
+        return reflection(self.barrier, var)
 
     def n_nonfinite(self):
         """Number of paths with a non-finite state, per saved time; shape ``(S,)``."""

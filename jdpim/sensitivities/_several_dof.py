@@ -11,6 +11,8 @@ offered: through impacts between masses they are not validated (see ``jdpim.meth
 
 from __future__ import annotations
 
+from typing import Any, NamedTuple
+
 import jax
 import jax.numpy as jnp
 
@@ -22,6 +24,7 @@ from ..methods._monte_carlo import MonteCarlo
 from ..methods._path_integration import PathIntegration
 from ..methods._paths import run_paths
 from ..results import _density
+from ..results._samples import reflection
 from ._estimators import CentralDifference, LikelihoodRatio, Score, warn_if_noisy
 
 
@@ -42,20 +45,20 @@ def several_dof_sensitivity(
     if isinstance(bandwidth, str):
         raise ValueError("bandwidth='adaptive' needs the Pathwise estimator: one degree of freedom only")
     grid = jnp.asarray(grid)
-    nominal = solve(scene, method)
-    if bandwidth is None:
-        y = nominal.samples(var, t)
-        bandwidth = float(_density.bandwidth(y, nominal.weights, rule, dim=1))
-    else:
+    if bandwidth is not None:
         check_real("bandwidth", bandwidth, low=0.0, low_open=True)
-    reflect = nominal._reflect(var)
-    value, stderr = {}, {}
+    reflect = reflection(scene.model.bounds(), var)
     scored = {n: e for n, e in estimators.items() if isinstance(e, LikelihoodRatio)}
-    if scored:
-        value, stderr = _likelihood_ratio(scene, scored, var, grid, t, method, bandwidth, reflect)
-    for name, est in estimators.items():
-        if name in scored:
-            continue
+    central = [n for n in wrt if n not in scored]
+    # the nominal paths: one run tracking the scores, or an untracked one where central differences need it
+    nominal = solve(scene, method) if central else None
+    paths = _scored_paths(scene, scored, var, t, method) if scored else None
+    if bandwidth is None:
+        y, w = (nominal.samples(var, t), nominal.weights) if nominal is not None else paths.nominal
+        bandwidth = float(_density.bandwidth(y, w, rule, dim=1))
+    value, stderr = _likelihood_ratio(paths, grid, bandwidth, reflect) if scored else ({}, {})
+    for name in central:
+        est = estimators[name]
         nominal_value = scene.noise.D if name == "D" else get_parameter(scene.model, name)
         lo, hi = est.pair(name, float(nominal_value))
         runs = [solve(with_parameters(scene, {name: p}), method) for p in (lo, hi)]
@@ -68,10 +71,20 @@ def several_dof_sensitivity(
     return value, stderr, estimators, method
 
 
-def _likelihood_ratio(scene: Scene, settings: dict, var, grid, t: float, method, sigma: float, reflect):
-    """``(value, stderr)`` dicts of ``sum_i w_i K(y - Y_i) (S_i - Sbar)`` for each parameter of ``settings``
-    (``{name: LikelihoodRatio}``), from one run of the paths tracking the score sums."""
-    from ._sensitivity import _centred_scores, _finite_weights, _moments, score_windows
+class _ScoredPaths(NamedTuple):
+    """One run of the paths tracking the scores: ``nominal`` the samples of ``var`` at ``t`` and the path weights
+    (as ``jdpim.solve`` gives them), ``y`` and ``w`` the same with non-finite paths at zero weight, ``scores``
+    ``{name: (N,)}`` the centred scores."""
+
+    nominal: tuple
+    y: Any
+    w: Any
+    scores: dict
+
+
+def _scored_paths(scene: Scene, settings: dict, var, t: float, method) -> _ScoredPaths:
+    """The paths of ``method`` up to ``t``, tracking the score sums of ``settings`` (``{name: LikelihoodRatio}``)."""
+    from ._sensitivity import _centred_scores, _finite_weights, score_windows
 
     k_t, starts, times, run_scene = score_windows(scene, settings, t)
     rows, weights, chunk = method.inputs(scene)
@@ -85,16 +98,22 @@ def _likelihood_ratio(scene: Scene, settings: dict, var, grid, t: float, method,
     )
     at = states[:, times.index(k_t)]
     y = jax.vmap(var)(at) if callable(var) else at[:, scene.model.coordinates.index(var)]
-    w, (_, y) = _finite_weights(weights, jnp.concatenate([at, sums[:, times.index(k_t)]], axis=1), y)
-    scores = _centred_scores(scene, settings, sums, w, times, k_t, starts)
-    grid_flat = jnp.atleast_1d(grid).astype(y.dtype)
+    w, (_, finite_y) = _finite_weights(weights, jnp.concatenate([at, sums[:, times.index(k_t)]], axis=1), y)
+    return _ScoredPaths((y, weights), finite_y, w, _centred_scores(scene, settings, sums, w, times, k_t, starts))
+
+
+def _likelihood_ratio(paths: _ScoredPaths, grid, sigma: float, reflect):
+    """``(value, stderr)`` dicts of ``sum_i w_i K(y - Y_i) (S_i - Sbar)`` for each parameter scored in ``paths``."""
+    from ._sensitivity import _moments
+
+    grid_flat = jnp.atleast_1d(grid).astype(paths.y.dtype)
 
     def contribution(y, s):
         return _density._kernel_matrix(grid_flat, y, sigma, reflect).T * s[:, None]
 
     value, stderr = {}, {}
-    for name in settings:
-        d, se = _moments(contribution, (y, scores[name]), w)
+    for name, score in paths.scores.items():
+        d, se = _moments(contribution, (paths.y, score), paths.w)
         value[name], stderr[name] = d.reshape(grid.shape), se.reshape(grid.shape)
     return value, stderr
 
