@@ -20,6 +20,11 @@ state is ``q``, ``v`` of shape ``(d,)``; its model's unilateral constraints ``c_
    quadratic in the step fraction) turns outward; that departure time is located inside the step, and a
    path that starts a step at rest with an inward force waits for it too. This holds for every ``r``
    (with ``r = 1`` a path pressed against the barrier at rest makes bounces of zero height: it rests too).
+   Several degrees of freedom (on the constraints ``ImpactRule.hold`` allows): after such an impact the path
+   is held on the constraint, ``n_j . q = b_j`` and ``n_j . v = 0``, and slides along it with the normal part
+   of its acceleration taken out (:func:`held_rk4`) until the free normal acceleration turns outward; that
+   departure is located inside the step on the quadratic through the held step's stage values. A held
+   path that lets go or crosses another constraint inside a step is served with the crossing paths.
 5. stiffness: a path whose local rate ``rho = |da/dv| + sqrt(|da/dq|)`` at the start of a step, or at
    the end of its full step, exceeds ``limit / h`` redoes that step as
    ``k = min(max_substeps, ceil(h rho / limit))`` equal sub-steps of its own (see :class:`Substeps`).
@@ -42,6 +47,7 @@ from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from ._constraints import dot, geometry, values
 from ._pytree import check_int, check_real
@@ -64,6 +70,14 @@ class ImpactRule:
             ``mirror_below * dt``. Sticking needs located impacts, so a path pressed against a constraint
             bounces in place instead of resting where ``mirror_below`` exceeds ``stick_velocity / r``. 0 (the
             default) locates every impact.
+        hold: sticking per constraint for several degrees of freedom (one degree of freedom always sticks
+            below ``stick_velocity``): whether a path may be held on a constraint after an impact slower than
+            ``stick_velocity`` and slide along it until the free normal acceleration turns outward, one bool
+            for every constraint or one per constraint. ``None`` (the default) lets the scene decide:
+            constraints whose normal acceleration the white noise reaches (``n_j . M^-1 B != 0``) are not
+            held, because there the contact force changes sign within every step and holding only adds
+            departures to the impacts; the others (a structure driven through a filter, by a harmonic
+            force, or not at all) are.
     """
 
     method: str = "locate"
@@ -71,6 +85,8 @@ class ImpactRule:
     stick_velocity: float = 1e-3
     newton_iterations: int = 4
     mirror_below: float = 0.0
+    hold: bool | tuple[bool, ...] | None = None
+    scene_hold: tuple[bool, ...] | None = dataclasses.field(default=None, repr=False)  # set by the scene
 
     def __post_init__(self):
         if self.method not in ("locate", "mirror"):
@@ -79,6 +95,24 @@ class ImpactRule:
         check_int("newton_iterations", self.newton_iterations, low=1)
         check_real("stick_velocity", self.stick_velocity, low=0.0)
         check_real("mirror_below", self.mirror_below, low=0.0)
+        if isinstance(self.hold, list):
+            object.__setattr__(self, "hold", tuple(self.hold))
+        flags = self.hold if isinstance(self.hold, tuple) else (self.hold,)
+        if self.hold is not None and not (flags and all(isinstance(f, (bool, np.bool_)) for f in flags)):
+            raise TypeError(f"hold must be None, a bool or a tuple of bools (one per constraint), got {self.hold!r}")
+        if isinstance(self.hold, tuple):
+            object.__setattr__(self, "hold", tuple(bool(f) for f in self.hold))
+
+    def held(self, n_constraints: int) -> np.ndarray:
+        """``(J,)`` bool: the constraints a path may be held on: ``hold``, or where it is ``None`` the scene's
+        decision (none without one)."""
+        if isinstance(self.hold, tuple):
+            if len(self.hold) != n_constraints:
+                raise ValueError(f"hold has {len(self.hold)} entries; the model has {n_constraints} constraints")
+            return np.asarray(self.hold, bool)
+        if self.hold is None and self.scene_hold is not None and len(self.scene_hold) == n_constraints:
+            return np.asarray(self.scene_hold, bool)
+        return np.full(n_constraints, bool(self.hold))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -140,6 +174,56 @@ def rk4(model, q, v, e, h, ta=0.0, tb=1.0):
     k3x, k3v = f(tm, q + 0.5 * H * k2x, v + 0.5 * H * k2v)
     k4x, k4v = f(tb, q + H * k3x, v + H * k3v)
     return (q + H / 6.0 * (k1x + 2.0 * k2x + 2.0 * k3x + k4x), v + H / 6.0 * (k1v + 2.0 * k2v + 2.0 * k3v + k4v))
+
+
+def held_rk4(model, geo, q, v, e, h, ta, tb, k):
+    """RK4 of one path held on constraint ``k`` (``k < 0``: free) from step fraction ``ta`` to ``tb``.
+
+    Held, the path moves on the plane ``c_k = 0`` with ``n_k . v = 0``: every stage's acceleration loses its
+    normal part, ``a - (n_k . a) push_k`` (the contact force that keeps ``n_k . a = 0``; for a mass-mass
+    contact the pair moves as one body), and the end state is put back onto the plane against rounding.
+    Returns ``(q, v, f)``, ``f`` ``(4,)`` the free normal acceleration ``n_k . a`` at the four stages
+    (fractions ``ta``, the midpoint twice, ``tb``): the contact holds while it is not positive.
+    """
+    held = k >= 0
+    kk = jnp.maximum(k, 0)
+    normal, position, push, onto, unit, keep = (
+        _pick(a, kk) for a in (geo.normal, geo.position, geo.push, geo.onto, geo.unit, geo.keep)
+    )
+    H = (tb - ta) * h
+    tm = 0.5 * (ta + tb)
+
+    def f(tau, q, v):
+        a = model.state_acceleration(q, v, _forcing(e, tau))
+        fn = dot(normal, a)
+        return v, jnp.where(held, a - fn * push, a), fn
+
+    k1x, k1v, f1 = f(ta, q, v)
+    k2x, k2v, f2 = f(tm, q + 0.5 * H * k1x, v + 0.5 * H * k1v)
+    k3x, k3v, f3 = f(tm, q + 0.5 * H * k2x, v + 0.5 * H * k2v)
+    k4x, k4v, f4 = f(tb, q + H * k3x, v + H * k3v)
+    q_end = q + H / 6.0 * (k1x + 2.0 * k2x + 2.0 * k3x + k4x)
+    v_end = v + H / 6.0 * (k1v + 2.0 * k2v + 2.0 * k3v + k4v)
+    q_end = jnp.where(held, dot(onto, q_end) + position * unit, q_end)
+    v_end = jnp.where(held, dot(keep, v_end), v_end)
+    return q_end, v_end, jnp.stack([f1, f2, f3, f4])
+
+
+def resting_on(geo, q, v):
+    """``(J,)`` bool: the constraints on whose plane one path lies with no normal speed, to rounding
+    (``|c_j|`` and ``|n_j . v|`` within 16 ulp of their terms' sizes)."""
+    tol = 16.0 * jnp.finfo(q.dtype).eps
+    absn = np.abs(geo.normal)
+    near = jnp.abs(values(geo, q)) <= tol * (jnp.abs(geo.position) + dot(absn, jnp.abs(q)))
+    return near & (jnp.abs(dot(geo.normal, v)) <= tol * dot(absn, jnp.abs(v)))
+
+
+def held_constraint(model, geo, q, v, e0, hold):
+    """The constraint one path starts a step held on: the first of those it may be held on (``hold``, ``(J,)``
+    bool) that it rests on (:func:`resting_on`) and whose free normal acceleration under the forcing ``e0``
+    presses into it (``n_j . a <= 0``); -1 for none."""
+    pressed = hold & resting_on(geo, q, v) & (dot(geo.normal, model.state_acceleration(q, v, e0)) <= 0)
+    return jnp.where(jnp.any(pressed), jnp.argmax(pressed), -1).astype(jnp.int32)
 
 
 def locate_crossing(x0, v0, x1, v1, H, n_iter, on_barrier=None):
@@ -216,6 +300,12 @@ def departure(model, e, tau0, normal, q_rest, n_iter=5):
     """
     rest = jnp.zeros_like(q_rest)
     f = jnp.stack([dot(normal, model.state_acceleration(q_rest, rest, e[i])) for i in range(3)])
+    return turns_positive(f, tau0, n_iter)
+
+
+def turns_positive(f, tau0, n_iter=5):
+    """First ``tau`` in ``[tau0, 1]`` where the quadratic through ``f[0], f[1], f[2]`` at ``tau = 0, 1/2, 1`` is
+    positive; 1 if never (``tau0`` if it is positive there)."""
     c0, c1, c2 = f[0], -3.0 * f[0] + 4.0 * f[1] - f[2], 2.0 * f[0] - 4.0 * f[1] + 2.0 * f[2]
 
     def q(tau):
@@ -232,17 +322,15 @@ def departure(model, e, tau0, normal, q_rest, n_iter=5):
     return jnp.where(q(tau0) > 0, tau0, jnp.where(in_first | (q(1.0) > 0), root, 1.0))
 
 
-def first_crossing(model, rule: ImpactRule, h, y0, tau0, y1, last, e):
-    """The first constraint crossed in ``[tau0, 1]`` of a step of one path whose end ``y1`` violates one.
-
-    Returns ``(geometry, hit, j, theta, (q, v))``: the constraints' geometry, whether any is violated at the end,
-    the index of the one crossed first, the step fraction of its crossing (located on the cubic Hermite
-    interpolant of ``c_j``) and the state there (RK4 from ``y0`` at ``tau0``), before the impact.
-    """
+def _crossing_time(rule: ImpactRule, h, y0, tau0, y1, last, geo, held=None):
+    """``(hit, j, theta)`` of one path's step ``y0`` (at ``tau0``) -> ``y1``: whether a constraint is violated at
+    the end (other than ``held``, the one the path is held on), the one crossed first and the step fraction of
+    its crossing, located on the cubic Hermite interpolant of ``c_j``."""
     (q0, v0), (q1, v1) = y0, y1
-    geo = geometry(model.stacked_constraints(), q0.dtype)
     c0, c1 = values(geo, q0), values(geo, q1)
     crossing = c1 < 0
+    if held is not None:
+        crossing = crossing & (jnp.arange(c1.shape[0]) != held)
     one = c0.shape[0] == 1  # one constraint: no reductions over constraints (each one a kernel of its own in XLA)
     hit = crossing[0] if one else jnp.any(crossing)
     # Constraints without a crossing get harmless stand-in values, so that no NaN reaches a derivative.
@@ -252,8 +340,19 @@ def first_crossing(model, rule: ImpactRule, h, y0, tau0, y1, last, e):
     span = jnp.where(crossing, (1.0 - tau0) * h, h)
     s_all = locate_crossing(rc0, dot(geo.normal, v0), rc1, dot(geo.normal, v1), span, rule.newton_iterations, on)
     j = jnp.zeros((), jnp.int32) if one else jnp.argmin(jnp.where(crossing, s_all, 2.0)).astype(jnp.int32)
-    theta = tau0 + _pick(s_all, j) * (1.0 - tau0)
-    return geo, hit, j, theta, rk4(model, q0, v0, e, h, tau0, theta)
+    return hit, j, tau0 + _pick(s_all, j) * (1.0 - tau0)
+
+
+def first_crossing(model, rule: ImpactRule, h, y0, tau0, y1, last, e):
+    """The first constraint crossed in ``[tau0, 1]`` of a step of one path whose end ``y1`` violates one.
+
+    Returns ``(geometry, hit, j, theta, (q, v))``: the constraints' geometry, whether any is violated at the end,
+    the index of the one crossed first, the step fraction of its crossing (located on the cubic Hermite
+    interpolant of ``c_j``) and the state there (RK4 from ``y0`` at ``tau0``), before the impact.
+    """
+    geo = geometry(model.stacked_constraints(), y0[0].dtype)
+    hit, j, theta = _crossing_time(rule, h, y0, tau0, y1, last, geo)
+    return geo, hit, j, theta, rk4(model, *y0, e, h, tau0, theta)
 
 
 def _resolve_one(model, rule: ImpactRule, h, y0, tau0, y1, last, e):
@@ -280,6 +379,59 @@ def _resolve_one(model, rule: ImpactRule, h, y0, tau0, y1, last, e):
     new_y0 = (jnp.where(hit, q_plus, q0), jnp.where(hit, v_plus, v0))
     new_y1 = (jnp.where(hit, qr, q1), jnp.where(hit, vr, v1))
     return new_y0, jnp.where(hit, theta, tau0), new_y1, jnp.where(hit, j, last)
+
+
+def _resolve_held(model, rule: ImpactRule, h, y0, tau0, y1, force, last, held, located, e, hold):
+    """The next event of one path inside ``[tau0, 1]`` of the step, with sticking per constraint (several degrees
+    of freedom): a departure from the constraint ``held`` (-1 for none) or the first crossing of another.
+
+    ``y1`` is the end of the step from ``y0`` at ``tau0`` (held on ``held`` where it is one) and ``force`` ``(4,)``
+    that step's free normal acceleration at its stages (:func:`held_rk4`). A held path departs where the free
+    normal acceleration ``n . a`` turns positive: the first positive point of the quadratic through its stage
+    values (start, midpoint, end); it then moves freely from there. A crossing (where ``located``, see
+    ``mirror_below``) is resolved by the generalised Newton law, or, where the outgoing normal speed ``r |u|``
+    is below ``stick_velocity`` and the free acceleration at the contact presses into it, by holding the path
+    on the constraint (normal speed zero) from the impact on (where ``hold``, ``(J,)`` bool, allows it). The
+    step is redone to the event (held as
+    before) and from it (held or free as after). Returns the new ``(y0, tau0, y1, force, last, held,
+    pending)``, ``pending`` whether the rest of the step may hold another event.
+    """
+    (q0, v0), (q1, v1) = y0, y1
+    geo = geometry(model.stacked_constraints(), q0.dtype)
+    hit, j, theta = _crossing_time(rule, h, y0, tau0, y1, last, geo, held)
+    hit = hit & located
+    s_off = turns_positive(jnp.stack([force[0], 0.5 * (force[1] + force[2]), force[3]]), 0.0)
+    tau_off = tau0 + s_off * (1.0 - tau0)
+    off_first = (held >= 0) & (s_off < 1) & (~hit | (tau_off <= theta))
+    event = off_first | hit
+    tau_e = jnp.where(off_first, tau_off, jnp.where(hit, theta, 1.0))
+    q_e, v_e, _ = held_rk4(model, geo, q0, v0, e, h, tau0, tau_e, held)
+    # the impact on j at theta: a bounce, or held from theta on
+    normal, position, r, push, onto, unit, keep, _ = (_pick(a, j) for a in geo)
+    q_plus = dot(onto, q_e) + position * unit
+    u = dot(normal, v_e)
+    v_slide = dot(keep, v_e)
+    pressed = dot(normal, model.state_acceleration(q_plus, v_slide, _forcing(e, tau_e))) <= 0
+    stick = (r * jnp.abs(u) < rule.stick_velocity) & pressed & (_pick(hold, j) > 0)
+    impact = hit & ~off_first
+    q_a = jnp.where(impact, q_plus, q_e)
+    v_a = jnp.where(impact, jnp.where(stick, v_slide, v_slide + r * jnp.abs(u) * push), v_e)
+    held_after = jnp.where(impact & stick, j, -1).astype(jnp.int32)
+    q_end, v_end, f_end = held_rk4(model, geo, q_a, v_a, e, h, tau_e, 1.0, held_after)
+
+    def choose(new, old):
+        return jnp.where(event, new, old)
+
+    pending = event & ((held_after < 0) | (0.5 * (f_end[1] + f_end[2]) > 0) | (f_end[3] > 0))
+    return (
+        (choose(q_a, q0), choose(v_a, v0)),
+        choose(tau_e, tau0),
+        (choose(q_end, q1), choose(v_end, v1)),
+        choose(f_end, force),
+        jnp.where(off_first, held, jnp.where(hit, j, last)),
+        choose(held_after, held),
+        pending,
+    )
 
 
 def _pick(a, j):
@@ -341,6 +493,8 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
     shared = path_model(None)
     constrained = shared.stacked_constraints() is not None
     sticking = constrained and rule.method == "locate" and rule.stick_velocity > 0 and shared.dimension == 1
+    hold = rule.held(len(shared.stacked_constraints().normal)) if constrained else np.zeros(0, bool)
+    holding = rule.method == "locate" and rule.stick_velocity > 0 and shared.dimension > 1 and bool(hold.any())
 
     def free(q, v, e, rand, tau0, h):
         return rk4(path_model(rand), q, v, e, h, tau0, 1.0)
@@ -350,6 +504,19 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
 
     def resolve(y0, tau0, y1, last, e, rand, h):
         return _resolve_one(path_model(rand), rule, h, y0, tau0, y1, last, e)
+
+    def resolve_held(y0, tau0, y1, force, last, held, located, e, rand, h):
+        return _resolve_held(path_model(rand), rule, h, y0, tau0, y1, force, last, held, located, e, hold)
+
+    def start_held(q, v, e, rand, h):
+        """One path's step from its start, held on the constraint it rests on and is pressed into (if any):
+        ``(q, v)`` at the end, its free normal accelerations at the stages ``(4,)``, that constraint (-1 for
+        none), and whether it lets go inside the step."""
+        model = path_model(rand)
+        geo = geometry(model.stacked_constraints(), q.dtype)
+        held = held_constraint(model, geo, q, v, e[0], hold)
+        q1, v1, f = held_rk4(model, geo, q, v, e, h, 0.0, 1.0, held)
+        return q1, v1, f, held, (held >= 0) & ((0.5 * (f[1] + f[2]) > 0) | (f[3] > 0))
 
     def mirror(q, v, rand):
         return _mirror(path_model(rand), q, v)
@@ -362,14 +529,20 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
         c = constraint_values(q, rand)
         return c[0] < 0 if c.shape[0] == 1 else jnp.any(c < 0)
 
-    def to_locate(y0, y1, rand):
+    def to_locate(y0, y1, rand, held=None):
         """Whether the step ``y0 -> y1`` of one path ends beyond a constraint that it crossed at a normal speed
-        of at least ``rule.mirror_below`` at either end (every crossing where it is 0)."""
-        if rule.mirror_below == 0:
+        of at least ``rule.mirror_below`` at either end (every crossing where it is 0), other than the one it
+        is ``held`` on."""
+        if rule.mirror_below == 0 and held is None:
             return violates(y1[0], rand)
         geo = geometry(path_model(rand).stacked_constraints(), y1[0].dtype)
-        speed = jnp.maximum(jnp.abs(dot(geo.normal, y0[1])), jnp.abs(dot(geo.normal, y1[1])))
-        return jnp.any((values(geo, y1[0]) < 0) & (speed >= rule.mirror_below))
+        beyond = values(geo, y1[0]) < 0
+        if held is not None:
+            beyond = beyond & (jnp.arange(beyond.shape[0]) != held)
+        if rule.mirror_below > 0:
+            speed = jnp.maximum(jnp.abs(dot(geo.normal, y0[1])), jnp.abs(dot(geo.normal, y1[1])))
+            beyond = beyond & (speed >= rule.mirror_below)
+        return jnp.any(beyond)
 
     def rests(q, v, rand):
         c = constraint_values(q, rand)
@@ -389,8 +562,10 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
             return jax.vmap(functools.partial(fn, h=h))
         return lambda *args: jax.vmap(lambda *a: fn(*a[:-1], h=a[-1]))(*args, h)
 
-    def resolve_crossings(y0, tau0, y1, e, rand, h):
-        """Every located impact of the step: ``y1`` with each crossing path's impacts resolved.
+    def resolve_crossings(y0, tau0, y1, e, rand, h, held=None, force=None, departs=None):
+        """Every located impact of the step: ``y1`` with each crossing path's impacts resolved (with ``held``,
+        the constraint each path is held on, ``force``, its stage forces, and ``departs``, whether it lets go
+        inside the step: every event of :func:`_resolve_held`).
 
         The crossing paths are served in batches of up to ``cap = ceil(n / 64)``: the paths are split into
         ``cap`` lanes of ``G = ceil(n / cap)``, and a batch takes the first crossing path of every lane that
@@ -411,16 +586,38 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
         per_path_h = jnp.ndim(h) != 0
         e = tuple(e) if isinstance(e, (tuple, list)) else tuple(e[:, i] for i in range(3))
         columns = (*y0, tau0[:, None], *y1, *e, rand) + ((h[:, None],) if per_path_h else ())
+        if holding:
+            columns = columns + (force, held.astype(tau0.dtype)[:, None])
         widths = [c.shape[1] for c in columns]
 
         def unpack(rows):
             parts = jnp.split(rows, list(itertools.accumulate(widths))[:-1], axis=1)
             q0, v0, t0, q1, v1, e0, e1, e2, r = parts[:9]
-            return (q0, v0), t0[:, 0], (q1, v1), (e0, e1, e2), r, (parts[9][:, 0] if per_path_h else h)
+            return (q0, v0), t0[:, 0], (q1, v1), (e0, e1, e2), r, (parts[9][:, 0] if per_path_h else h), parts[-2:]
+
+        def resolve_batch_held(b0, t0, b1, be, br, bh, held_columns):
+            """Up to ``max_impacts + 1`` events (impacts, departures) of each of the batch's held or crossing paths."""
+            last = jnp.full(t0.shape, -1, jnp.int32)
+            bforce, bheld = held_columns[0], held_columns[1][:, 0].astype(jnp.int32)
+
+            def one_event(_, carry):
+                pending = carry[-1]
+
+                def resolve_all(c):
+                    located = jax.vmap(to_locate)(c[0], c[2], br, c[5])
+                    new = per_path(resolve_held, bh)(*c[:6], located, be, br)
+                    return jax.tree_util.tree_map(lambda a, b: jnp.where(_paths(pending, a), a, b), new, c)
+
+                return jax.lax.cond(jnp.any(pending), resolve_all, lambda c: c, carry)
+
+            init = (b0, t0, b1, bforce, last, bheld, jnp.ones(t0.shape, bool))
+            return jax.lax.fori_loop(0, rule.max_impacts + 1, one_event, init)[2]
 
         def resolve_batch(rows):
             """Up to ``max_impacts`` impacts of each of the batch's paths: ``(k, 2 d)`` end states."""
-            b0, t0, b1, be, br, bh = unpack(rows)
+            b0, t0, b1, be, br, bh, held_columns = unpack(rows)
+            if holding:
+                return jnp.concatenate(resolve_batch_held(b0, t0, b1, be, br, bh, held_columns), axis=1)
             last = jnp.full(t0.shape, -1, jnp.int32)
 
             def one_impact(_, carry):
@@ -457,7 +654,7 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
         def run_all(end, todo):
             return batches((jnp.concatenate(columns, axis=1), end, todo, True), depth)[1]
 
-        todo = jax.vmap(to_locate)(y0, y1, rand)
+        todo = jax.vmap(to_locate)(y0, y1, rand) if held is None else jax.vmap(to_locate)(y0, y1, rand, held) | departs
         end = jnp.concatenate(y1, axis=1)
         end = jax.lax.cond(jnp.any(todo), run_all, lambda end, _: end, end, todo)
         return end[:, :d], end[:, d:]
@@ -478,11 +675,15 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
                 return (*start(q, v, e, rand), tau0)
 
             q1, v1, tau0 = jax.lax.cond(jnp.any(jax.vmap(rests)(q, v, rand)), from_rest, from_start)
+        elif holding:
+            q1, v1, force, held, departs = per_path(start_held, h)(q, v, e, rand)
         else:
             q1, v1 = start(q, v, e, rand)
         if not constrained:
             return q1, v1
-        if rule.method == "locate":
+        if holding:
+            q1, v1 = resolve_crossings((q, v), tau0, (q1, v1), e, rand, h, held, force, departs)
+        elif rule.method == "locate":
             q1, v1 = resolve_crossings((q, v), tau0, (q1, v1), e, rand, h)
         return jax.vmap(mirror)(q1, v1, rand)
 
@@ -610,7 +811,7 @@ class Impacts(Tracker):
     shape ``(2 + K,)`` for ``K + 1`` edges (``K = 0`` without edges).
 
     A step has an impact where its free RK4 step (the integrator's trial step) ends beyond a constraint and
-    the path did not start the step at rest on one. The impact speed is ``-n . v`` (normal to the constraint,
+    the path did not start the step at rest or held on one. The impact speed is ``-n . v`` (normal to the constraint,
     relative for a mass-mass contact) at the first crossing, located as the integrator locates it; speeds
     outside ``edges`` are counted as impacts but in no bin. Several impacts in one step count once.
     """
@@ -623,7 +824,11 @@ class Impacts(Tracker):
 
     def update(self, model, acc, q, v, q_new, v_new, e, h):
         geo = geometry(model.stacked_constraints(), q.dtype)
-        resting = jnp.any(values(geo, q) == 0) & jnp.all(v == 0)
+        hold = self.rule.held(geo.normal.shape[0])
+        if q.shape[0] > 1 and self.rule.method == "locate" and self.rule.stick_velocity > 0 and hold.any():
+            resting = jnp.any(hold & resting_on(geo, q, v))  # held on a constraint (sticking per constraint)
+        else:
+            resting = jnp.any(values(geo, q) == 0) & jnp.all(v == 0)
         trial = rk4(model, q, v, e, h)
         _, hit, j, _, (_, vc) = first_crossing(model, self.rule, h, (q, v), jnp.zeros((), q.dtype), trial, -1, e)
         impact = hit & ~resting

@@ -185,6 +185,15 @@ class MDOFOscillator(AbstractSystem):
             force = force + jnp.reshape(self.force(q, v, self.params), (self.dimension,))
         return dot(jnp.asarray(self.inverse_mass(), dtype), force)
 
+    def noise_reaches(self) -> np.ndarray | None:
+        """``(J,)`` bool: whether the white noise acts on each constraint's normal acceleration
+        (``n_j . M^-1 B != 0``); ``None`` where the gains are not concrete numbers (traced)."""
+        gains = concrete(self.gains)
+        if gains is None or not self.constraints:
+            return None
+        reach = np.array([c.normal for c in self.constraints]) @ self.inverse_mass() @ gains
+        return np.any(np.abs(reach) > 1e-12 * max(1.0, float(np.abs(gains).max())), axis=1)
+
     def stacked_constraints(self) -> Constraints | None:
         if not self.constraints:
             return None

@@ -95,6 +95,14 @@ class Scene:
             if not isinstance(getattr(self, name), kind) and not (name == "substeps" and self.substeps is None):
                 what = " or jdpim.".join(k.__name__ for k in (kind if isinstance(kind, tuple) else (kind,)))
                 raise TypeError(f"{name} must be a jdpim.{what}, got {getattr(self, name)!r}")
+        model = self.model
+        n_constraints = len(model.constraints) if hasattr(model, "constraints") else int(model.has_barrier)
+        if self.impacts.hold is None and getattr(model, "dimension", 1) > 1 and n_constraints:
+            reach = model.noise_reaches()  # sticking per constraint where the noise leaves the contact alone
+            if reach is not None:  # else traced gains: the decision made where the scene was built stays
+                decided = tuple(bool(not x) for x in reach)
+                object.__setattr__(self, "impacts", dataclasses.replace(self.impacts, scene_hold=decided))
+        self.impacts.held(n_constraints)  # a hold of one entry per constraint
         if isinstance(self.excitation, SpectralRepresentation):
             self.spectral_grid()  # the cutoff must lie below the Nyquist frequency of the stage grid
         if self.dtype not in (None, "float32", "float64"):
@@ -118,6 +126,14 @@ class Scene:
                     )
         else:
             self._check_vector_start()
+
+    @property
+    def held_constraints(self) -> tuple[bool, ...]:
+        """Whether a path may be held on each constraint after a slow impact (``ImpactRule.hold``, or the scene's
+        decision where it is ``None``: the constraints the white noise does not reach)."""
+        model = self.model
+        n_constraints = len(model.constraints) if hasattr(model, "constraints") else int(model.has_barrier)
+        return tuple(bool(h) for h in self.impacts.held(n_constraints))
 
     def _check_vector_start(self) -> None:
         """A model of ``n`` coordinates: ``x0``, ``v0`` scalars or ``(n,)``; ``x0`` admissible."""
