@@ -1,6 +1,7 @@
 """Monte Carlo and DPIM over several processes (``jax.distributed``) against one process, on this host.
 
-Scene: the reference oscillator (alpha = gamma = 0.03, r = 0.98, D = 0.03) from rest to ``t_end``. Each
+Scene: the reference oscillator (alpha = gamma = 0.03, r = 0.98, D = 0.03) from rest to ``t_end``; Monte Carlo
+with the spectral forcing and with :class:`jdpim.GaussianNodes` (no FFT), and DPIM. Each
 configuration starts its processes afresh (``python -m jdpim.bench.processes``, one coordinator on
 ``127.0.0.1``): one process on one CPU device, one process on one device per core, and one process per core
 on one device each. Every process runs the job once to compile, then ``repeats`` times after a barrier
@@ -45,13 +46,15 @@ def _worker(argv) -> None:
     scene = jdpim.Scene(jdpim.VibroImpactOscillator(), noise=jdpim.WhiteNoise(D=0.03), t_end=t_end, dt=0.01)
     grid = np.linspace(0.0, 2.0, 201)
     rows = {}
-    for name, method in (
-        ("monte_carlo", jdpim.MonteCarlo(n_samples=n_samples, seed=0, progress=False)),
-        ("dpim", jdpim.DPIM(n_points=n_points, progress=False)),
+    monte_carlo = jdpim.MonteCarlo(n_samples=n_samples, seed=0, progress=False)
+    for name, method, job_scene in (
+        ("monte_carlo", monte_carlo, scene),
+        ("monte_carlo_nodes", monte_carlo, scene.replace(excitation=jdpim.GaussianNodes())),
+        ("dpim", jdpim.DPIM(n_points=n_points, progress=False), scene),
     ):
 
-        def job(method=method):
-            return np.asarray(jdpim.solve(scene, method).pdf("x", grid, t_end))
+        def job(method=method, job_scene=job_scene):
+            return np.asarray(jdpim.solve(job_scene, method).pdf("x", grid, t_end))
 
         job()
         times = []
@@ -107,7 +110,7 @@ def run_processes(
     rows = []
     for processes, devices, got in results:
         row = {"processes": processes, "devices_per_process": devices}
-        for name, n in (("monte_carlo", n_samples), ("dpim", n_points)):
+        for name, n in (("monte_carlo", n_samples), ("monte_carlo_nodes", n_samples), ("dpim", n_points)):
             t = got[name]["median_s"]
             row[f"{name}_s"] = round(t, 3)
             row[f"{name}_speedup"] = round(base[name]["median_s"] / t, 2)
@@ -118,8 +121,9 @@ def run_processes(
     summary = {"t_end": t_end, "n_samples": n_samples, "n_points": n_points, "repeats": repeats, "rows": rows}
     (out / "processes.json").write_text(json.dumps(summary, indent=1))
     title = (
-        f"Reference scene to t = {t_end:g} s (dt = 0.01, float32): Monte Carlo {n_samples} paths, DPIM {n_points} "
-        f"points; median of {repeats} warm runs including the x density; speed-up against 1 process on 1 device"
+        f"Reference scene to t = {t_end:g} s (dt = 0.01, float32): Monte Carlo {n_samples} paths (spectral forcing; "
+        f"`monte_carlo_nodes`: GaussianNodes, drawn inside the steps), DPIM {n_points} points; median of {repeats} "
+        f"warm runs including the x density; speed-up against 1 process on 1 device"
     )
     (out / "processes.md").write_text("\n".join([title, "", *_table(rows, list(rows[0]))]) + "\n")
     return ["processes.json", "processes.md"]
