@@ -209,6 +209,12 @@ def held_rk4(model, geo, q, v, e, h, ta, tb, k):
     return q_end, v_end, jnp.stack([f1, f2, f3, f4])
 
 
+def lets_go(held, f):
+    """Whether a path held on a constraint (``held >= 0``) lets go inside its held step: the free normal acceleration
+    ``f`` ``(4,)`` at the step's stages (:func:`held_rk4`) is positive at the midpoint or the end."""
+    return (held >= 0) & ((0.5 * (f[1] + f[2]) > 0) | (f[3] > 0))
+
+
 def resting_on(geo, q, v):
     """``(J,)`` bool: the constraints on whose plane one path lies with no normal speed, to rounding
     (``|c_j|`` and ``|n_j . v|`` within 16 ulp of their terms' sizes)."""
@@ -392,9 +398,9 @@ def _resolve_held(model, rule: ImpactRule, h, y0, tau0, y1, force, last, held, l
     ``mirror_below``) is resolved by the generalised Newton law, or, where the outgoing normal speed ``r |u|``
     is below ``stick_velocity`` and the free acceleration at the contact presses into it, by holding the path
     on the constraint (normal speed zero) from the impact on (where ``hold``, ``(J,)`` bool, allows it). The
-    step is redone to the event (held as
-    before) and from it (held or free as after). Returns the new ``(y0, tau0, y1, force, last, held,
-    pending)``, ``pending`` whether the rest of the step may hold another event.
+    step is redone to the event (held as before) and from it (held or free as after). Returns the new
+    ``(y0, tau0, y1, force, last, held, pending)``, ``pending`` whether the rest of the step may hold another
+    event.
     """
     (q0, v0), (q1, v1) = y0, y1
     geo = geometry(model.stacked_constraints(), q0.dtype)
@@ -422,7 +428,7 @@ def _resolve_held(model, rule: ImpactRule, h, y0, tau0, y1, force, last, held, l
     def choose(new, old):
         return jnp.where(event, new, old)
 
-    pending = event & ((held_after < 0) | (0.5 * (f_end[1] + f_end[2]) > 0) | (f_end[3] > 0))
+    pending = event & ((held_after < 0) | lets_go(held_after, f_end))
     return (
         (choose(q_a, q0), choose(v_a, v0)),
         choose(tau_e, tau0),
@@ -516,7 +522,7 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
         geo = geometry(model.stacked_constraints(), q.dtype)
         held = held_constraint(model, geo, q, v, e[0], hold)
         q1, v1, f = held_rk4(model, geo, q, v, e, h, 0.0, 1.0, held)
-        return q1, v1, f, held, (held >= 0) & ((0.5 * (f[1] + f[2]) > 0) | (f[3] > 0))
+        return q1, v1, f, held, lets_go(held, f)
 
     def mirror(q, v, rand):
         return _mirror(path_model(rand), q, v)

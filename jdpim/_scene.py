@@ -23,6 +23,11 @@ NOISE_PARAMETERS = ("D",)  # parameters of the excitation, beside the model's
 _GRID_TOL = 1e-6  # relative tolerance (in steps) for times that must lie on the time grid
 
 
+def _n_constraints(model) -> int:
+    """The number of unilateral constraints of ``model`` (a barrier of one degree of freedom counts one)."""
+    return len(model.constraints) if hasattr(model, "constraints") else int(model.has_barrier)
+
+
 @pytree_dataclass
 class Scene:
     r"""Everything that defines one stochastic-response computation.
@@ -96,7 +101,7 @@ class Scene:
                 what = " or jdpim.".join(k.__name__ for k in (kind if isinstance(kind, tuple) else (kind,)))
                 raise TypeError(f"{name} must be a jdpim.{what}, got {getattr(self, name)!r}")
         model = self.model
-        n_constraints = len(model.constraints) if hasattr(model, "constraints") else int(model.has_barrier)
+        n_constraints = _n_constraints(model)
         if self.impacts.hold is None and getattr(model, "dimension", 1) > 1 and n_constraints:
             reach = model.noise_reaches()  # sticking per constraint where the noise leaves the contact alone
             if reach is not None:  # else traced gains: the decision made where the scene was built stays
@@ -131,9 +136,7 @@ class Scene:
     def held_constraints(self) -> tuple[bool, ...]:
         """Whether a path may be held on each constraint after a slow impact (``ImpactRule.hold``, or the scene's
         decision where it is ``None``: the constraints the white noise does not reach)."""
-        model = self.model
-        n_constraints = len(model.constraints) if hasattr(model, "constraints") else int(model.has_barrier)
-        return tuple(bool(h) for h in self.impacts.held(n_constraints))
+        return tuple(bool(h) for h in self.impacts.held(_n_constraints(self.model)))
 
     def _check_vector_start(self) -> None:
         """A model of ``n`` coordinates: ``x0``, ``v0`` scalars or ``(n,)``; ``x0`` admissible."""
