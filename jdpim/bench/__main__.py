@@ -58,6 +58,8 @@ def main(argv=None, *, from_program=None) -> int:
     )
     thr.add_argument("--methods", nargs="+", default=["dpim", "monte_carlo"], choices=["dpim", "monte_carlo"])
     thr.add_argument("--dtype", default="float32", choices=["float32", "float64"])
+    thr.add_argument("--forcing", default="spectral", choices=["spectral", "nodes"], help="Monte Carlo's forcing")
+    thr.add_argument("--impacts", default="locate", choices=["locate", "mirror"], help="impact rule")
     thr.add_argument("--t-end", type=float, default=200.0, help="end time (s)")
     thr.add_argument("--repeats", type=_positive_int, default=3, help="warm repeats (median)")
     thr.add_argument("--out", type=pathlib.Path, default=pathlib.Path("jdpim_out/bench"))
@@ -111,6 +113,8 @@ def main(argv=None, *, from_program=None) -> int:
             chunk_sizes=args.chunk_sizes or [None],
             methods=args.methods,
             dtype=args.dtype,
+            forcing=args.forcing,
+            impacts=args.impacts,
             t_end=args.t_end,
             repeats=args.repeats,
             log=lambda s: print(s, flush=True),

@@ -2,10 +2,13 @@
 
 ``python -m jdpim.bench throughput --sizes 1000 100000 --chunk-sizes 4096 65536``: for each method, number
 of paths ``n`` and chunk size, the paths go through :func:`jdpim.methods._paths.run_paths` (sharded over every
-local device, streamed in blocks), exactly as ``jdpim.dpim`` / ``jdpim.monte_carlo`` run them. Protocol:
-the first call (compilation included) is timed apart, then ``repeats`` warm calls, median. Input
-preparation (point selection, keys) is outside the clock. Peak device memory is the allocator's
-high-water mark where the backend reports one (GPUs), else the process's resident high-water mark.
+local device, streamed in blocks), exactly as ``jdpim.dpim`` / ``jdpim.monte_carlo`` run them, followed by the
+kernel density of ``x`` at the end time on 481 points (``Result.pdf``; its time is a column of its own and part
+of the path-steps per second). ``--forcing nodes`` gives Monte Carlo the noise drawn inside the steps
+(:class:`jdpim.GaussianNodes`), ``--impacts mirror`` the first-order mirror rule. Protocol: the first call
+(compilation included) is timed apart, then ``repeats`` warm calls, median. Input preparation (point
+selection, keys) is outside the clock. Peak device memory is the allocator's high-water mark where the
+backend reports one (GPUs), else the process's resident high-water mark.
 """
 
 from __future__ import annotations
@@ -21,8 +24,10 @@ import time
 import jax
 import numpy as np
 
-from ..methods._paths import dpim_inputs, monte_carlo_inputs, run_paths
-from .accuracy import paper_scene
+from .._excitation import GaussianNodes, SpectralRepresentation
+from .._integrate import ImpactRule
+from ..methods._paths import _finish, dpim_inputs, monte_carlo_inputs, run_paths
+from .accuracy import grids, paper_scene
 
 
 def _peak_mib() -> float:
@@ -39,18 +44,25 @@ def measure(scene, method: str, n: int, chunk_size: int, repeats: int) -> dict:
     else:
         rows, _, chunk = monte_carlo_inputs(scene, n, chunk_size=chunk_size)
 
+    weights = jax.numpy.full((n,), 1.0 / n, scene.float_dtype)
+    x_grid = grids(1.0)[0]
+
     def call():
-        return jax.block_until_ready(run_paths(scene, rows, kind=method, chunk_size=chunk, progress=False))
+        t0 = time.perf_counter()
+        states = jax.block_until_ready(run_paths(scene, rows, kind=method, chunk_size=chunk, progress=False))
+        t1 = time.perf_counter()
+        jax.block_until_ready(_finish(scene, states, weights, method).pdf("x", x_grid, scene.t_end))
+        return states, t1 - t0, time.perf_counter() - t1
 
     t0 = time.perf_counter()
-    states = call()
+    states, _, _ = call()
     first_s = time.perf_counter() - t0
-    runs = []
+    totals, kde_s = [], []
     for _ in range(repeats):
-        t0 = time.perf_counter()
-        states = call()
-        runs.append(time.perf_counter() - t0)
-    median = statistics.median(runs)
+        states, paths, kde = call()
+        totals.append(paths + kde)
+        kde_s.append(kde)
+    median = statistics.median(totals)
     finite = np.isfinite(np.asarray(states)).all(axis=(1, 2))
     return {
         "method": method,
@@ -58,6 +70,7 @@ def measure(scene, method: str, n: int, chunk_size: int, repeats: int) -> dict:
         "chunk_size": chunk,
         "first_call_s": round(first_s, 3),
         "median_s": round(median, 4),
+        "kde_s": round(statistics.median(kde_s), 4),
         "repeats": repeats,
         "path_steps_per_s": float(f"{n * scene.n_steps / median:.3g}"),
         "n_nonfinite": int(n - finite.sum()),
@@ -72,6 +85,8 @@ def run_throughput(
     chunk_sizes=(None,),
     methods=("dpim", "monte_carlo"),
     dtype: str = "float32",
+    forcing: str = "spectral",
+    impacts: str = "locate",
     t_end: float = 200.0,
     dt: float = 0.01,
     repeats: int = 3,
@@ -80,7 +95,10 @@ def run_throughput(
     """Run the throughput table; writes ``throughput.json`` and ``throughput.md`` under ``out``."""
     if dtype == "float64":
         jax.config.update("jax_enable_x64", True)
-    scene = paper_scene(t_end, dt, dtype=dtype)
+    excitation = GaussianNodes() if forcing == "nodes" else SpectralRepresentation()
+    scene = paper_scene(t_end, dt, excitation, dtype=dtype, impacts=ImpactRule(method=impacts))
+    if forcing == "nodes":
+        methods = [m for m in methods if m != "dpim"]  # DPIM needs the spectral representation
     rows = []
     for method in methods:
         for n in sizes:
@@ -88,7 +106,14 @@ def run_throughput(
                 if chunk is not None and chunk > n:
                     continue
                 log(f"[throughput] {method} n={n} chunk={chunk or 'default'} ...")
-                rows.append({"dtype": dtype, **measure(scene, method, n, chunk, repeats)})
+                rows.append(
+                    {
+                        "dtype": dtype,
+                        "forcing": forcing,
+                        "impacts": impacts,
+                        **measure(scene, method, n, chunk, repeats),
+                    }
+                )
                 log(f"[throughput]   {rows[-1]}")
     devices = jax.local_devices()
     info = {

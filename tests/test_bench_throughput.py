@@ -1,0 +1,20 @@
+"""``python -m jdpim.bench throughput``: one row per method and size, with the noise drawn inside the steps and the
+mirror rule as options, the kernel density's time counted in the path-steps per second."""
+
+import json
+
+import pytest
+
+from jdpim.bench.__main__ import main
+
+
+def test_throughput_rows_with_nodes_and_the_mirror_rule(tmp_path):
+    argv = ["throughput", "--sizes", "16", "--t-end", "10", "--repeats", "1", "--out", str(tmp_path)]
+    assert main([*argv, "--forcing", "nodes", "--impacts", "mirror"]) == 0
+    info = json.loads((tmp_path / "throughput.json").read_text())
+    (row,) = info["rows"]  # DPIM needs the spectral representation: Monte Carlo alone
+    assert (row["method"], row["forcing"], row["impacts"], row["n_paths"]) == ("monte_carlo", "nodes", "mirror", 16)
+    assert row["n_nonfinite"] == 0
+    assert 0 < row["kde_s"] < row["median_s"]
+    assert row["path_steps_per_s"] == pytest.approx(16 * 1000 / row["median_s"], rel=0.01)  # median_s is rounded
+    assert "| nodes | mirror | monte_carlo | 16 |" in (tmp_path / "throughput.md").read_text()
