@@ -460,6 +460,12 @@ def _mirror(model, q, v):
     return q, v
 
 
+# chunks of at least this many paths resolve their crossings without branches first (an accelerator's chunks; a
+# CPU's are at most a few thousand paths), in a batch of a WIDE_SHARE-th of the paths
+WIDE_CHUNK = 8192
+WIDE_SHARE = 32
+
+
 def first_in_lanes(mask, lanes: int):
     """Index of the first true entry of ``mask`` (``(n,)`` bool) in each of ``lanes`` runs of it, ``n`` if none.
 
@@ -585,9 +591,16 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
         iterations (static trip counts, so reverse-mode AD works) whose subtrees are skipped once no path is
         pending: the resolution is traced once, and a step whose crossings fit in one batch passes ``depth``
         skipped subtrees.
+
+        A chunk of ``WIDE_CHUNK`` paths or more (an accelerator's) is served without branches first: one batch
+        of up to ``cap = ceil(n / 32)`` crossing paths, taken in order (``jnp.nonzero``) and gathered column by
+        column, resolved unconditionally in every step; the lanes serve the crossings beyond it. On a GPU every
+        branch costs a read of its predicate by the host and kernels of its own, which set the cost of a step
+        (docs/speed.md).
         """
         n, d = y0[0].shape
-        cap = max(1, -(-n // 64))
+        wide = n >= WIDE_CHUNK
+        cap = -(-n // WIDE_SHARE) if wide else max(1, -(-n // 64))
         depth = (-(-n // cap) - 1).bit_length()
         per_path_h = jnp.ndim(h) != 0
         e = tuple(e) if isinstance(e, (tuple, list)) else tuple(e[:, i] for i in range(3))
@@ -614,7 +627,7 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
                     new = per_path(resolve_held, bh)(*c[:6], located, be, br)
                     return jax.tree_util.tree_map(lambda a, b: jnp.where(_paths(pending, a), a, b), new, c)
 
-                return jax.lax.cond(jnp.any(pending), resolve_all, lambda c: c, carry)
+                return resolve_all(carry) if wide else jax.lax.cond(jnp.any(pending), resolve_all, lambda c: c, carry)
 
             init = (b0, t0, b1, bforce, last, bheld, jnp.ones(t0.shape, bool))
             return jax.lax.fori_loop(0, rule.max_impacts + 1, one_event, init)[2]
@@ -635,17 +648,21 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
                         return new
                     return jax.tree_util.tree_map(lambda a, b: jnp.where(_paths(located, a), a, b), new, c)
 
-                return jax.lax.cond(jnp.any(located), resolve_all, lambda c: c, carry)
+                return resolve_all(carry) if wide else jax.lax.cond(jnp.any(located), resolve_all, lambda c: c, carry)
 
             b1 = jax.lax.fori_loop(0, rule.max_impacts, one_impact, (b0, t0, b1, last))[2]
             return jnp.concatenate(b1, axis=1)
 
-        def one_batch(carry):
-            packed, end, todo, _ = carry
-            idx = first_in_lanes(todo, cap)
-            end = end.at[idx].set(resolve_batch(packed.at[idx].get(mode="clip")), mode="drop")
+        def one_batch(carry, in_order=False):
+            source, end, todo, _ = carry
+            idx = jnp.nonzero(todo, size=cap, fill_value=n)[0] if in_order else first_in_lanes(todo, cap)
+            if wide:  # the columns themselves: packing them would copy every path in every step
+                rows = jnp.concatenate([c.at[idx].get(mode="clip") for c in source], axis=1)
+            else:
+                rows = source.at[idx].get(mode="clip")
+            end = end.at[idx].set(resolve_batch(rows), mode="drop")
             todo = todo.at[idx].set(False, mode="drop")
-            return packed, end, todo, jnp.any(todo)
+            return source, end, todo, jnp.any(todo)
 
         def batches(carry, depth):
             """``carry`` if no path is pending, else up to ``2**depth`` batches: two subtrees of ``depth - 1``."""
@@ -662,7 +679,10 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
 
         todo = jax.vmap(to_locate)(y0, y1, rand) if held is None else jax.vmap(to_locate)(y0, y1, rand, held) | departs
         end = jnp.concatenate(y1, axis=1)
-        end = jax.lax.cond(jnp.any(todo), run_all, lambda end, _: end, end, todo)
+        if wide:
+            end = batches(one_batch((columns, end, todo, True), in_order=True), depth)[1]
+        else:
+            end = jax.lax.cond(jnp.any(todo), run_all, lambda end, _: end, end, todo)
         return end[:, :d], end[:, d:]
 
     def plain_step(q, v, e, rand, h):

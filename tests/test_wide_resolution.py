@@ -1,0 +1,62 @@
+"""The branch-free resolution of large chunks (``WIDE_CHUNK`` paths or more, an accelerator's) gives the states of
+the lane resolution that smaller chunks use: the threshold is lowered so that small chunks take it on a CPU."""
+
+import jax
+import numpy as np
+import pytest
+
+import jdpim
+from jdpim import _integrate
+
+
+def _states(scene, n, wide, monkeypatch, **method):
+    monkeypatch.setattr(_integrate, "WIDE_CHUNK", 64 if wide else 2**62)
+    jax.clear_caches()  # the threshold is read when the step is traced
+    res = jdpim.solve(scene, jdpim.MonteCarlo(n_samples=n, seed=3, chunk_size=n, **method))
+    return np.asarray(res.states)
+
+
+def _one_dof(excitation, t_end=2.0, **start):
+    model = jdpim.VibroImpactOscillator(alpha=0.03, gamma=0.03, r=0.98)
+    return jdpim.Scene(model, noise=jdpim.WhiteNoise(D=0.08), t_end=t_end, dt=0.01, excitation=excitation, **start)
+
+
+SCENES = {
+    # every path crosses in its first step: 256 crossings against a batch of 8, so the lanes serve the rest
+    "all cross at once": lambda: _one_dof(jdpim.GaussianNodes(), x0=1e-3, v0=-1.0),
+    "spectral forcing": lambda: _one_dof(jdpim.SpectralRepresentation(), x0=0.5),
+    "impact damper": lambda: jdpim.Scene(jdpim.impact_damper(), noise=jdpim.WhiteNoise(D=0.05), t_end=2.0, dt=0.01),
+    "held on the walls": lambda: jdpim.Scene(
+        jdpim.kanai_tajimi(jdpim.impact_damper(), omega_g=3.0, zeta_g=0.6),
+        noise=jdpim.WhiteNoise(D=0.05),
+        t_end=3.0,
+        dt=0.01,
+    ),
+}
+
+
+@pytest.mark.parametrize("name", SCENES)
+def test_wide_resolution_gives_the_lane_states(name, monkeypatch):
+    scene = SCENES[name]()
+    wide = _states(scene, 256, True, monkeypatch)
+    lanes = _states(scene, 256, False, monkeypatch)
+    assert np.all(np.isfinite(wide))
+    np.testing.assert_allclose(wide, lanes, rtol=0, atol=1e-5)
+
+
+def test_reverse_mode_through_the_wide_resolution(monkeypatch):
+    """``jax.grad`` of E[x^2] at t = 0.5 s with respect to the restitution, through the wide resolution (64 paths
+    from the barrier's side, every one crossing at once, so the lanes serve most of them too), against central
+    differences of the same paths."""
+    monkeypatch.setattr(_integrate, "WIDE_CHUNK", 16)
+    jax.clear_caches()
+    scene = _one_dof(jdpim.GaussianNodes(), t_end=0.5, x0=1e-3, v0=-1.0)
+
+    @jax.jit
+    def second_moment(r):
+        s = scene.replace(model=scene.model.replace(r=r))
+        return jdpim.solve(s, jdpim.MonteCarlo(n_samples=64, seed=1, chunk_size=64)).moment("x", 2, 0.5)
+
+    step = 1e-3
+    central = (second_moment(0.98 + step) - second_moment(0.98 - step)) / (2 * step)
+    np.testing.assert_allclose(float(jax.grad(second_moment)(0.98)), float(central), rtol=2e-3)
