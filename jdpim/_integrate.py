@@ -261,8 +261,11 @@ def locate_crossing(x0, v0, x1, v1, H, n_iter, on_barrier=None):
         return jnp.where(on_barrier, c1 + 2 * s * c2, dp(s))
 
     lo, hi = jnp.zeros_like(x0), jnp.ones_like(x0)
+    # Starting points carry no derivative (the iterations and the final Newton step give it): the secant's
+    # derivative divides by (a0 - a1)^2, which underflows where a step ends a rounding error beyond the
+    # constraint it starts on, and reverse mode would then multiply 0 by it (nan).
     guess = jnp.clip(a0 / (a0 - a1), 0.0, 1.0)
-    s = jnp.where(on_barrier, jax.lax.stop_gradient(_deflated_root(c0, c1, c2, a1)), guess)
+    s = jax.lax.stop_gradient(jnp.where(on_barrier, _deflated_root(c0, c1, c2, a1), guess))
     for _ in range(n_iter):
         ps = f(s)
         pos = ps >= 0
