@@ -33,8 +33,10 @@ Only the crossing paths do the impact work, in batches of up to ``ceil(n / 64)``
 piece, each path's impacts resolved on the batch's small arrays and scattered back (see
 ``resolve_crossings`` in :func:`make_batch_step`); the loops have static trip counts and skip their
 iterations (``lax.cond``) once no path is pending, so the resolution is traced once whatever
-``max_impacts``, and a step without any crossing skips all of it. The ``"mirror"`` method is
-the first-order "flip after the step" rule, kept for comparison.
+``max_impacts``, and a step without any crossing skips all of it. Chunks of ``WIDE_CHUNK`` paths or more (an
+accelerator's, where every branch costs a read by the host) resolve a first batch of up to ``n / 32`` crossing
+paths in every step without branches. The ``"mirror"`` method is the first-order "flip after the step" rule,
+kept for comparison.
 """
 
 from __future__ import annotations
@@ -501,9 +503,9 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
     (or one ``(n, 3, m)`` array).
 
     ``path_model(rand)`` builds one path's model from its random-parameter vector. Impacts are resolved
-    on the crossing paths only, in batches of up to ``ceil(n / 64)`` of them gathered, resolved and
-    scattered back. With ``substeps`` (and a model that may be stiff) each path that needs it takes the
-    step as sub-steps of its own (see :class:`Substeps`).
+    on the crossing paths only, in batches of up to ``ceil(n / 64)`` of them (``ceil(n / 32)`` in chunks of
+    ``WIDE_CHUNK`` paths or more) gathered, resolved and scattered back. With ``substeps`` (and a model that
+    may be stiff) each path that needs it takes the step as sub-steps of its own (see :class:`Substeps`).
     """
     shared = path_model(None)
     constrained = shared.stacked_constraints() is not None
