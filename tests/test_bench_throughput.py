@@ -18,3 +18,12 @@ def test_throughput_rows_with_nodes_and_the_mirror_rule(tmp_path):
     assert 0 < row["kde_s"] < row["median_s"]
     assert row["path_steps_per_s"] == pytest.approx(16 * 1000 / row["median_s"], rel=0.01)  # median_s is rounded
     assert "| nodes | mirror | monte_carlo | 16 |" in (tmp_path / "throughput.md").read_text()
+
+
+def test_dpim_alone_with_nodes_fails_in_one_line(tmp_path, capsys):
+    argv = ["throughput", "--methods", "dpim", "--forcing", "nodes", "--out", str(tmp_path)]
+    with pytest.raises(SystemExit) as exit_info:
+        main(argv)
+    assert exit_info.value.code == 2
+    assert "--methods dpim needs the spectral forcing" in capsys.readouterr().err
+    assert not (tmp_path / "throughput.json").exists()

@@ -107,6 +107,9 @@ def main(argv=None, *, from_program=None) -> int:
     elif args.command == "throughput":
         from .throughput import run_throughput
 
+        if args.forcing == "nodes" and set(args.methods) == {"dpim"}:
+            parser.error("--methods dpim needs the spectral forcing (DPIM refuses --forcing nodes)")
+
         files = run_throughput(
             args.out,
             sizes=args.sizes,

@@ -95,10 +95,15 @@ def run_throughput(
     """Run the throughput table; writes ``throughput.json`` and ``throughput.md`` under ``out``."""
     if dtype == "float64":
         jax.config.update("jax_enable_x64", True)
-    excitation = GaussianNodes() if forcing == "nodes" else SpectralRepresentation()
-    scene = paper_scene(t_end, dt, excitation, dtype=dtype, impacts=ImpactRule(method=impacts))
-    if forcing == "nodes":
-        methods = [m for m in methods if m != "dpim"]  # DPIM needs the spectral representation
+    forcings = {"spectral": SpectralRepresentation, "nodes": GaussianNodes}
+    if forcing not in forcings:
+        raise ValueError(f"forcing must be one of {sorted(forcings)}, got {forcing!r}")
+    scene = paper_scene(t_end, dt, forcings[forcing](), dtype=dtype, impacts=ImpactRule(method=impacts))
+    if forcing == "nodes" and "dpim" in methods:
+        methods = [m for m in methods if m != "dpim"]
+        if not methods:
+            raise ValueError("DPIM needs the spectral forcing: run it without forcing='nodes'")
+        log("[throughput] DPIM left out: it needs the spectral forcing")
     rows = []
     for method in methods:
         for n in sizes:
