@@ -156,7 +156,7 @@ def test_held_paths_under_filtered_noise_stay_finite_admissible_and_held():
 
 
 def test_reverse_mode_from_rest_on_a_wall_is_finite_and_equals_forward_mode():
-    """Paths of the filtered damper held at rest against a wall from the start (float32, 63 paths, 2 steps; one of
+    """Paths of the filtered damper held at rest against a wall from the start (float32, 7 paths, 2 steps; one of
     them ends its held step a rounding error beyond the wall): ``jax.grad`` of E[x1^2] with respect to
     ``stiffness[0,0]`` is finite and equal to ``jax.jvp``'s (reverse mode gave nan: the crossing's starting guess
     carried a derivative that divides by an underflowing square)."""
@@ -168,7 +168,7 @@ def test_reverse_mode_from_rest_on_a_wall_is_finite_and_equals_forward_mode():
 
     def second_moment(k):
         s = scene.replace(model=model.replace(stiffness=jnp.asarray(model.stiffness).at[0, 0].set(k)))
-        return jdpim.solve(s, jdpim.MonteCarlo(n_samples=63, seed=0)).moment("x1", 2, 0.02)
+        return jdpim.solve(s, jdpim.MonteCarlo(n_samples=7, seed=31)).moment("x1", 2, 0.02)
 
     with pytest.warns(jdpim.SensitivityWarning):
         reverse = float(jax.grad(second_moment)(k0))
