@@ -21,7 +21,7 @@ import numpy as np
 from .._cpu import host_memory
 from .._distributions import elementary_ppf
 from .._excitation import GaussianNodes, gaussian_coefficients, random_function_coefficients, synthesize
-from .._integrate import integrate
+from .._integrate import WIDE_CHUNK, integrate
 from .._points import PointSet, select_points
 from .._pytree import check_int, concrete
 from .._scene import Scene, with_model_parameters
@@ -34,9 +34,12 @@ DEVICE_MEMORY_SHARE = 0.5  # share of an accelerator's memory one chunk's excita
 # most bytes of one per-path number per chunk on a CPU (512 float32 or 256 float64 paths): above about
 # 2.1 KiB the cost per path-step rises 1.2-2.5x (docs/speed.md)
 CPU_CHUNK_BYTES = 2048
-# with the noise drawn inside the steps (no excitation array) and the mirror rule, larger chunks pay on a CPU;
-# with located impacts they do not (docs/speed.md)
+# with the noise drawn inside the steps (no excitation array) and the mirror rule, larger chunks pay on a CPU
+# (docs/speed.md)
 NODES_MIRROR_CHUNK_FACTOR = 4
+# with that noise and located impacts, chunks of at least WIDE_CHUNK paths (up to this many) pay on a CPU where
+# every device has that many paths: their crossings are resolved in one wide batch per step (docs/mdof.md)
+NODES_WIDE_CHUNK = 2 * WIDE_CHUNK
 
 
 class NonFiniteWarning(RuntimeWarning):
@@ -87,15 +90,20 @@ def default_chunk_size(scene: Scene, n_paths: int) -> int:
     """Paths per chunk so that one chunk's excitation work stays within :func:`memory_budget`.
 
     On a CPU that is 512 MiB (about 800 paths of the reference scene), and at most 512 paths in float32
-    or 256 in float64 (``CPU_CHUNK_BYTES``; four times that with :class:`jdpim.GaussianNodes` and the mirror
-    rule), above which XLA's CPU code takes longer per path; on a GPU
+    or 256 in float64 (``CPU_CHUNK_BYTES``), above which XLA's CPU code takes longer per path. With
+    :class:`jdpim.GaussianNodes` (no excitation array) chunks are larger on a CPU: four times that with the mirror
+    rule, and with located impacts on constraints ``WIDE_CHUNK`` to ``NODES_WIDE_CHUNK`` paths where every local
+    device gets at least ``WIDE_CHUNK`` of them, so that each step resolves its crossings in one batch; on a GPU
     half its memory, as far as 32-bit indexing allows: a GPU's time per step barely grows with the paths
     in a chunk, so large chunks are what make it fast (``docs/speed.md``).
     """
     bytes_per_path = 4 * scene.float_dtype.itemsize * _values_per_path(scene)
     cap = CPU_CHUNK_BYTES // scene.float_dtype.itemsize if jax.local_devices()[0].platform == "cpu" else n_paths
-    if isinstance(scene.excitation, GaussianNodes) and scene.impacts.method == "mirror":
-        cap *= NODES_MIRROR_CHUNK_FACTOR
+    if isinstance(scene.excitation, GaussianNodes) and jax.local_devices()[0].platform == "cpu":
+        if scene.impacts.method == "mirror":
+            cap *= NODES_MIRROR_CHUNK_FACTOR
+        elif scene.model.stacked_constraints() is not None and n_paths // jax.local_device_count() >= WIDE_CHUNK:
+            cap = NODES_WIDE_CHUNK
     largest = max(1, min(n_paths, cap, memory_budget() // bytes_per_path, _largest_chunk(scene)))
     n_chunks = -(-n_paths // largest)
     return -(-n_paths // n_chunks)  # equal chunks: the least padding
