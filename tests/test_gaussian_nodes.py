@@ -60,14 +60,14 @@ def test_dpim_refuses_and_bad_settings_fail_in_one_line():
 
 def test_cpu_chunks_with_located_impacts_are_wide_only_where_every_device_fills_one():
     """On a CPU, Monte Carlo with the noise drawn inside the steps and located impacts takes chunks of
-    ``WIDE_CHUNK`` to ``NODES_WIDE_CHUNK`` paths (one wide batch of crossings per step) where every local device
-    gets at least ``WIDE_CHUNK`` paths; otherwise, without constraints, or with the spectral forcing it keeps the
+    ``WIDE_CHUNK`` to ``NODES_WIDE_CHUNK`` paths (one wide batch of crossings per step) where every device gets
+    at least ``WIDE_CHUNK`` paths; otherwise, without constraints, or with the spectral forcing it keeps the
     small chunks."""
     from jdpim._integrate import WIDE_CHUNK
     from jdpim.methods._paths import CPU_CHUNK_BYTES, NODES_WIDE_CHUNK, balanced_chunk, default_chunk_size
 
     small = CPU_CHUNK_BYTES // 4
-    devices = jax.local_device_count()
+    devices = jax.device_count()
     damper = jdpim.Scene(jdpim.impact_damper(), noise=jdpim.WhiteNoise(D=0.01), t_end=1.0, dt=0.01, excitation=NODES)
     for n in (devices * WIDE_CHUNK, 10**5, 10**6 + 1):
         chunk = default_chunk_size(damper, n)

@@ -92,18 +92,19 @@ def default_chunk_size(scene: Scene, n_paths: int) -> int:
     On a CPU that is 512 MiB (about 800 paths of the reference scene), and at most 512 paths in float32
     or 256 in float64 (``CPU_CHUNK_BYTES``), above which XLA's CPU code takes longer per path. With
     :class:`jdpim.GaussianNodes` (no excitation array) chunks are larger on a CPU: four times that with the mirror
-    rule, and with located impacts on constraints ``WIDE_CHUNK`` to ``NODES_WIDE_CHUNK`` paths where every local
-    device gets at least ``WIDE_CHUNK`` of them, so that each step resolves its crossings in one batch; on a GPU
-    half its memory, as far as 32-bit indexing allows: a GPU's time per step barely grows with the paths
+    rule, and with located impacts on constraints ``WIDE_CHUNK`` to ``NODES_WIDE_CHUNK`` paths where every device
+    (of every process) gets at least ``WIDE_CHUNK`` of them, so that each step resolves its crossings in one
+    batch; on a GPU half its memory, as far as 32-bit indexing allows: a GPU's time per step barely grows with the paths
     in a chunk, so large chunks are what make it fast (``docs/speed.md``).
     """
     bytes_per_path = 4 * scene.float_dtype.itemsize * _values_per_path(scene)
-    cap = CPU_CHUNK_BYTES // scene.float_dtype.itemsize if jax.local_devices()[0].platform == "cpu" else n_paths
-    if isinstance(scene.excitation, GaussianNodes) and jax.local_devices()[0].platform == "cpu":
+    cpu = jax.local_devices()[0].platform == "cpu"
+    cap = CPU_CHUNK_BYTES // scene.float_dtype.itemsize if cpu else n_paths
+    if cpu and isinstance(scene.excitation, GaussianNodes):
         if scene.impacts.method == "mirror":
             cap *= NODES_MIRROR_CHUNK_FACTOR
-        elif scene.model.stacked_constraints() is not None and n_paths // jax.local_device_count() >= WIDE_CHUNK:
-            cap = NODES_WIDE_CHUNK
+        elif scene.model.stacked_constraints() is not None and n_paths // jax.device_count() >= WIDE_CHUNK:
+            cap = NODES_WIDE_CHUNK  # the paths are split over every process's devices
     largest = max(1, min(n_paths, cap, memory_budget() // bytes_per_path, _largest_chunk(scene)))
     n_chunks = -(-n_paths // largest)
     return -(-n_paths // n_chunks)  # equal chunks: the least padding
