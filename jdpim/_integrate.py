@@ -34,7 +34,7 @@ piece, each path's impacts resolved on the batch's small arrays and scattered ba
 ``resolve_crossings`` in :func:`make_batch_step`); the loops have static trip counts and skip their
 iterations (``lax.cond``) once no path is pending, so the resolution is traced once whatever
 ``max_impacts``, and a step without any crossing skips all of it. Chunks of ``WIDE_CHUNK`` paths or more (an
-accelerator's, where every branch costs a read by the host) resolve a first batch of up to ``n / 32`` crossing
+accelerator's, where every branch costs a read by the host) resolve a first batch of up to ``n / 16`` crossing
 paths in every step without branches. The ``"mirror"`` method is the first-order "flip after the step" rule,
 kept for comparison.
 """
@@ -466,9 +466,10 @@ def _mirror(model, q, v):
 
 
 # chunks of at least this many paths resolve their crossings without branches first (an accelerator's chunks; a
-# CPU's are at most a few thousand paths), in a batch of a WIDE_SHARE-th of the paths
+# CPU's where default_chunk_size makes them so), in a batch of a WIDE_SHARE-th of the paths, which holds the 3-6 %
+# of the impact damper's paths that cross in a step (docs/mdof.md)
 WIDE_CHUNK = 8192
-WIDE_SHARE = 32
+WIDE_SHARE = 16
 
 
 def first_in_lanes(mask, lanes: int):
@@ -503,7 +504,7 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
     (or one ``(n, 3, m)`` array).
 
     ``path_model(rand)`` builds one path's model from its random-parameter vector. Impacts are resolved
-    on the crossing paths only, in batches of up to ``ceil(n / 64)`` of them (``ceil(n / 32)`` in chunks of
+    on the crossing paths only, in batches of up to ``ceil(n / 64)`` of them (``ceil(n / 16)`` in chunks of
     ``WIDE_CHUNK`` paths or more) gathered, resolved and scattered back. With ``substeps`` (and a model that
     may be stiff) each path that needs it takes the step as sub-steps of its own (see :class:`Substeps`).
     """
@@ -598,7 +599,7 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
         skipped subtrees.
 
         A chunk of ``WIDE_CHUNK`` paths or more (an accelerator's) is served without branches first: one batch
-        of up to ``cap = ceil(n / 32)`` crossing paths, taken in order (``jnp.nonzero``) and gathered column by
+        of up to ``cap = ceil(n / 16)`` crossing paths, taken in order (``jnp.nonzero``) and gathered column by
         column, resolved unconditionally in every step; the lanes serve the crossings beyond it. On a GPU every
         branch costs a read of its predicate by the host and kernels of its own, which set the cost of a step
         (docs/speed.md).
