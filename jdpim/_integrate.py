@@ -466,8 +466,7 @@ def _mirror(model, q, v):
 
 
 # chunks of at least this many paths resolve their crossings without branches first (an accelerator's chunks; a
-# CPU's where default_chunk_size makes them so), in a batch of a WIDE_SHARE-th of the paths, which holds the 3-6 %
-# of the impact damper's paths that cross in a step (docs/mdof.md)
+# CPU's where default_chunk_size makes them so), in a batch of a WIDE_SHARE-th of the paths (docs/mdof.md)
 WIDE_CHUNK = 8192
 WIDE_SHARE = 16
 
