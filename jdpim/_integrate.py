@@ -597,7 +597,8 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
         pending: the resolution is traced once, and a step whose crossings fit in one batch passes ``depth``
         skipped subtrees.
 
-        A chunk of ``WIDE_CHUNK`` paths or more (an accelerator's) is served without branches first: one batch
+        A chunk of ``WIDE_CHUNK`` paths or more (an accelerator's; a CPU's where ``default_chunk_size`` makes it so)
+        is served without branches first: one batch
         of up to ``cap = ceil(n / 16)`` crossing paths, taken in order (``jnp.nonzero``) and gathered column by
         column, resolved unconditionally in every step; the lanes serve the crossings beyond it. On a GPU every
         branch costs a read of its predicate by the host and kernels of its own, which set the cost of a step
