@@ -469,6 +469,16 @@ def _mirror(model, q, v):
 # CPU's where default_chunk_size makes them so), in a batch of a WIDE_SHARE-th of the paths (docs/mdof.md)
 WIDE_CHUNK = 8192
 WIDE_SHARE = 16
+# a batch of more rows than this has a multiple of them (docs/speed.md)
+BATCH_ROWS = 8
+
+
+def batch_rows(n: int, wide: bool) -> int:
+    """Rows of one resolution batch in a chunk of ``n`` paths: ``ceil(n / 64)``, or ``ceil(n / WIDE_SHARE)`` in a
+    wide chunk, rounded up to a multiple of ``BATCH_ROWS`` above it (XLA's CPU code took 1.8-2.8x as long per step
+    for batches of an odd number of rows)."""
+    cap = -(-n // WIDE_SHARE) if wide else max(1, -(-n // 64))
+    return min(n, -(-cap // BATCH_ROWS) * BATCH_ROWS) if cap > BATCH_ROWS else cap
 
 
 def first_in_lanes(mask, lanes: int):
@@ -584,11 +594,11 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
         the constraint each path is held on, ``force``, its stage forces, and ``departs``, whether it lets go
         inside the step: every event of :func:`_resolve_held`).
 
-        The crossing paths are served in batches of up to ``cap = ceil(n / 64)``: the paths are split into
-        ``cap`` lanes of ``G = ceil(n / cap)``, and a batch takes the first crossing path of every lane that
-        has one, gathered in one piece (every per-path input packed in the columns of one array), resolves
-        up to ``max_impacts`` impacts of each on these few rows, and scatters their end states back. Every
-        loop that runs on the batch touches only its small arrays, and every loop level over batches has a
+        The crossing paths are served in batches of up to ``cap`` (:func:`batch_rows`: ``ceil(n / 64)``): the
+        paths are split into ``cap`` lanes of ``G = ceil(n / cap)``, and a batch takes the first crossing path of
+        every lane that has one, gathered in one piece (every per-path input packed in the columns of one array),
+        resolves up to ``max_impacts`` impacts of each on these few rows, and scatters their end states back.
+        Every loop that runs on the batch touches only its small arrays, and every loop level over batches has a
         few operations in a chain, so XLA's CPU runtime runs them inline rather than handing them to its
         thread pool (which costs more than the work).
 
@@ -597,16 +607,15 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
         pending: the resolution is traced once, and a step whose crossings fit in one batch passes ``depth``
         skipped subtrees.
 
-        A chunk of ``WIDE_CHUNK`` paths or more (an accelerator's; a CPU's where ``default_chunk_size`` makes it so)
-        is served without branches first: one batch
-        of up to ``cap = ceil(n / 16)`` crossing paths, taken in order (``jnp.nonzero``) and gathered column by
-        column, resolved unconditionally in every step; the lanes serve the crossings beyond it. On a GPU every
-        branch costs a read of its predicate by the host and kernels of its own, which set the cost of a step
-        (docs/speed.md).
+        A chunk of ``WIDE_CHUNK`` paths or more (an accelerator's; a CPU's where ``default_chunk_size`` makes
+        it so) is served without branches first: one batch of up to ``cap`` (``ceil(n / 16)``) crossing paths,
+        taken in order (``jnp.nonzero``) and gathered column by column, resolved unconditionally in every step;
+        the lanes serve the crossings beyond it. On a GPU every branch costs a read of its predicate by the host
+        and kernels of its own, which set the cost of a step (docs/speed.md).
         """
         n, d = y0[0].shape
         wide = n >= WIDE_CHUNK
-        cap = -(-n // WIDE_SHARE) if wide else max(1, -(-n // 64))
+        cap = batch_rows(n, wide)
         depth = (-(-n // cap) - 1).bit_length()
         per_path_h = jnp.ndim(h) != 0
         e = tuple(e) if isinstance(e, (tuple, list)) else tuple(e[:, i] for i in range(3))

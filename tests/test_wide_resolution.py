@@ -60,3 +60,12 @@ def test_reverse_mode_through_the_wide_resolution(monkeypatch):
     step = 1e-3
     central = (second_moment(0.98 + step) - second_moment(0.98 - step)) / (2 * step)
     np.testing.assert_allclose(float(jax.grad(second_moment)(0.98)), float(central), rtol=2e-3)
+
+
+@pytest.mark.parametrize(
+    "n, wide, rows",
+    [(14286, True, 896), (16384, True, 1024), (8192, True, 512), (14272, False, 224), (512, False, 8), (100, False, 2)],
+)
+def test_batch_rows_are_a_multiple_of_eight_above_it(n, wide, rows):
+    """Batches above ``BATCH_ROWS`` rows are rounded up to a multiple of it (odd ones ran 2x slower on a CPU)."""
+    assert _integrate.batch_rows(n, wide) == rows
