@@ -33,9 +33,10 @@ Only the crossing paths do the impact work, in batches of up to ``ceil(n / 64)``
 piece, each path's impacts resolved on the batch's small arrays and scattered back (see
 ``resolve_crossings`` in :func:`make_batch_step`); the loops have static trip counts and skip their
 iterations (``lax.cond``) once no path is pending, so the resolution is traced once whatever
-``max_impacts``, and a step without any crossing skips all of it. Chunks of ``WIDE_CHUNK`` paths or more (an
-accelerator's, where every branch costs a read by the host) resolve a first batch of up to ``n / 16`` crossing
-paths in every step without branches. The ``"mirror"`` method is the first-order "flip after the step" rule,
+``max_impacts``, and a step without any crossing skips all of it. Chunks of ``WIDE_CHUNK`` paths or more
+resolve a first batch of up to ``n / 16`` crossing paths: an accelerator's (where every branch costs a read by
+the host) in every step without branches, a CPU's in the steps where more than ``n / 128`` paths cross. The
+``"mirror"`` method is the first-order "flip after the step" rule,
 kept for comparison.
 """
 
@@ -465,12 +466,20 @@ def _mirror(model, q, v):
     return q, v
 
 
-# chunks of at least this many paths resolve their crossings without branches first (an accelerator's chunks; a
-# CPU's where default_chunk_size makes them so), in a batch of a WIDE_SHARE-th of the paths (docs/mdof.md)
+# chunks of at least this many paths resolve their crossings in a wide batch first, of a WIDE_SHARE-th of the
+# paths: an accelerator's chunks in every step, without branches; a CPU's (where default_chunk_size makes them so)
+# in the steps where more than a CROWDED_AT-th of the paths cross, the others by the lanes (docs/mdof.md)
 WIDE_CHUNK = 8192
 WIDE_SHARE = 16
+CROWDED_AT = 128
 # a batch of more rows than this has a multiple of them (docs/speed.md)
 BATCH_ROWS = 8
+
+
+def branches_are_cheap() -> bool:
+    """Whether a ``lax.cond`` costs little next to a step of a wide chunk: on a CPU, where no host reads its
+    predicate from an accelerator's memory."""
+    return jax.default_backend() == "cpu"
 
 
 def batch_rows(n: int, wide: bool) -> int:
@@ -608,15 +617,16 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
         skipped subtrees.
 
         A chunk of ``WIDE_CHUNK`` paths or more (an accelerator's; a CPU's where ``default_chunk_size`` makes
-        it so) is served without branches first: one batch of up to ``cap`` (``ceil(n / 16)``) crossing paths,
-        taken in order (``jnp.nonzero``) and gathered column by column, resolved unconditionally in every step;
-        the lanes serve the crossings beyond it. On a GPU every branch costs a read of its predicate by the host
-        and kernels of its own, which set the cost of a step (docs/speed.md).
+        it so) is served by a wide batch first: up to ``cap`` (``ceil(n / 16)``) crossing paths, taken in order
+        (``jnp.nonzero``) and gathered column by column, every round on every row; lanes of ``G = 16`` paths
+        serve the crossings beyond it. On an accelerator that runs in every step without branches: every branch
+        costs a read of its predicate by the host and kernels of its own, which set the cost of a step
+        (docs/speed.md). On a CPU a branch is cheap, and a wide batch costs as much whether 10 or 800 paths
+        cross: only a step where more than ``n / CROWDED_AT`` paths cross takes it (the impact damper's
+        rattling), any other the lanes of 64 (the reference scene's few crossings).
         """
         n, d = y0[0].shape
         wide = n >= WIDE_CHUNK
-        cap = batch_rows(n, wide)
-        depth = (-(-n // cap) - 1).bit_length()
         per_path_h = jnp.ndim(h) != 0
         e = tuple(e) if isinstance(e, (tuple, list)) else tuple(e[:, i] for i in range(3))
         columns = (*y0, tau0[:, None], *y1, *e, rand) + ((h[:, None],) if per_path_h else ())
@@ -629,7 +639,7 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
             q0, v0, t0, q1, v1, e0, e1, e2, r = parts[:9]
             return (q0, v0), t0[:, 0], (q1, v1), (e0, e1, e2), r, (parts[9][:, 0] if per_path_h else h), parts[-2:]
 
-        def resolve_batch_held(b0, t0, b1, be, br, bh, held_columns):
+        def resolve_batch_held(b0, t0, b1, be, br, bh, held_columns, wide):
             """Up to ``max_impacts + 1`` events (impacts, departures) of each of the batch's held or crossing paths."""
             last = jnp.full(t0.shape, -1, jnp.int32)
             bforce, bheld = held_columns[0], held_columns[1][:, 0].astype(jnp.int32)
@@ -647,11 +657,12 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
             init = (b0, t0, b1, bforce, last, bheld, jnp.ones(t0.shape, bool))
             return jax.lax.fori_loop(0, rule.max_impacts + 1, one_event, init)[2]
 
-        def resolve_batch(rows):
-            """Up to ``max_impacts`` impacts of each of the batch's paths: ``(k, 2 d)`` end states."""
+        def resolve_batch(rows, wide):
+            """Up to ``max_impacts`` impacts of each of the batch's paths: ``(k, 2 d)`` end states (``wide``: every
+            round on every row, without branches)."""
             b0, t0, b1, be, br, bh, held_columns = unpack(rows)
             if holding:
-                return jnp.concatenate(resolve_batch_held(b0, t0, b1, be, br, bh, held_columns), axis=1)
+                return jnp.concatenate(resolve_batch_held(b0, t0, b1, be, br, bh, held_columns, wide), axis=1)
             last = jnp.full(t0.shape, -1, jnp.int32)
 
             def one_impact(_, carry):
@@ -668,36 +679,45 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
             b1 = jax.lax.fori_loop(0, rule.max_impacts, one_impact, (b0, t0, b1, last))[2]
             return jnp.concatenate(b1, axis=1)
 
-        def one_batch(carry, in_order=False):
+        def one_batch(carry, wide, in_order=False):
             source, end, todo, _ = carry
+            cap = batch_rows(n, wide)
             idx = jnp.nonzero(todo, size=cap, fill_value=n)[0] if in_order else first_in_lanes(todo, cap)
             if wide:  # the columns themselves: packing them would copy every path in every step
                 rows = jnp.concatenate([c.at[idx].get(mode="clip") for c in source], axis=1)
             else:
                 rows = source.at[idx].get(mode="clip")
-            end = end.at[idx].set(resolve_batch(rows), mode="drop")
+            end = end.at[idx].set(resolve_batch(rows, wide), mode="drop")
             todo = todo.at[idx].set(False, mode="drop")
             return source, end, todo, jnp.any(todo)
 
-        def batches(carry, depth):
-            """``carry`` if no path is pending, else up to ``2**depth`` batches: two subtrees of ``depth - 1``."""
+        def batches(carry, wide, depth=None):
+            """``carry`` if no path is pending, else up to ``2**depth`` batches (``None``: enough for any step): two
+            subtrees of ``depth - 1``."""
+            if depth is None:
+                depth = (-(-n // batch_rows(n, wide)) - 1).bit_length()
 
             def run(carry):
                 if depth == 0:
-                    return one_batch(carry)
-                return jax.lax.fori_loop(0, 2, lambda _, c: batches(c, depth - 1), carry)
+                    return one_batch(carry, wide)
+                return jax.lax.fori_loop(0, 2, lambda _, c: batches(c, wide, depth - 1), carry)
 
             return jax.lax.cond(carry[3], run, lambda c: c, carry)
 
-        def run_all(end, todo):
-            return batches((jnp.concatenate(columns, axis=1), end, todo, True), depth)[1]
+        def by_lanes(end, todo):
+            return batches((jnp.concatenate(columns, axis=1), end, todo, jnp.any(todo)), wide=False)[1]
+
+        def wide_first(end, todo):
+            return batches(one_batch((columns, end, todo, True), wide=True, in_order=True), wide=True)[1]
 
         todo = jax.vmap(to_locate)(y0, y1, rand) if held is None else jax.vmap(to_locate)(y0, y1, rand, held) | departs
         end = jnp.concatenate(y1, axis=1)
-        if wide:
-            end = batches(one_batch((columns, end, todo, True), in_order=True), depth)[1]
+        if not wide:
+            end = jax.lax.cond(jnp.any(todo), by_lanes, lambda end, _: end, end, todo)
+        elif branches_are_cheap():
+            end = jax.lax.cond(jnp.sum(todo) > n // CROWDED_AT, wide_first, by_lanes, end, todo)
         else:
-            end = jax.lax.cond(jnp.any(todo), run_all, lambda end, _: end, end, todo)
+            end = wide_first(end, todo)
         return end[:, :d], end[:, d:]
 
     def plain_step(q, v, e, rand, h):

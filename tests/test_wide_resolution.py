@@ -1,5 +1,6 @@
-"""The branch-free resolution of large chunks (``WIDE_CHUNK`` paths or more, an accelerator's) gives the states of
-the lane resolution that smaller chunks use: the threshold is lowered so that small chunks take it on a CPU."""
+"""The wide resolution of large chunks (``WIDE_CHUNK`` paths or more) gives the states of the lane resolution that
+smaller chunks use, both as an accelerator runs it (without branches) and as a CPU does (a wide batch only in the
+steps where many paths cross): the threshold is lowered so that small chunks take it here."""
 
 import jax
 import numpy as np
@@ -9,8 +10,9 @@ import jdpim
 from jdpim import _integrate
 
 
-def _states(scene, n, wide, monkeypatch, **method):
+def _states(scene, n, wide, monkeypatch, branch_free=True, **method):
     monkeypatch.setattr(_integrate, "WIDE_CHUNK", 64 if wide else 2**62)
+    monkeypatch.setattr(_integrate, "branches_are_cheap", lambda: not branch_free)
     jax.clear_caches()  # the threshold is read when the step is traced
     res = jdpim.solve(scene, jdpim.MonteCarlo(n_samples=n, seed=3, chunk_size=n, **method))
     return np.asarray(res.states)
@@ -35,10 +37,12 @@ SCENES = {
 }
 
 
-@pytest.mark.parametrize("name", SCENES)
-def test_wide_resolution_gives_the_lane_states(name, monkeypatch):
+@pytest.mark.parametrize(
+    "name, branch_free", [(name, True) for name in SCENES] + [("all cross at once", False), ("impact damper", False)]
+)
+def test_wide_resolution_gives_the_lane_states(name, branch_free, monkeypatch):
     scene = SCENES[name]()
-    wide = _states(scene, 256, True, monkeypatch)
+    wide = _states(scene, 256, True, monkeypatch, branch_free)
     lanes = _states(scene, 256, False, monkeypatch)
     assert np.all(np.isfinite(wide))
     np.testing.assert_allclose(wide, lanes, rtol=0, atol=1e-5)
@@ -49,6 +53,7 @@ def test_reverse_mode_through_the_wide_resolution(monkeypatch):
     from the barrier's side, every one crossing at once, so the lanes serve most of them too), against central
     differences of the same paths."""
     monkeypatch.setattr(_integrate, "WIDE_CHUNK", 16)
+    monkeypatch.setattr(_integrate, "branches_are_cheap", lambda: False)
     jax.clear_caches()
     scene = _one_dof(jdpim.GaussianNodes(), t_end=0.5, x0=1e-3, v0=-1.0)
 

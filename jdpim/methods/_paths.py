@@ -38,7 +38,7 @@ CPU_CHUNK_BYTES = 2048
 # (docs/speed.md)
 NODES_MIRROR_CHUNK_FACTOR = 4
 # with that noise and located impacts, chunks of at least WIDE_CHUNK paths (up to this many) pay on a CPU where
-# every device has that many paths: their crossings are resolved in one wide batch per step (docs/mdof.md)
+# every device has that many paths: a step where many of them cross resolves them in one wide batch (docs/mdof.md)
 NODES_WIDE_CHUNK = 2 * WIDE_CHUNK
 
 
@@ -93,9 +93,9 @@ def default_chunk_size(scene: Scene, n_paths: int) -> int:
     or 256 in float64 (``CPU_CHUNK_BYTES``), above which XLA's CPU code takes longer per path. With
     :class:`jdpim.GaussianNodes` (no excitation array) chunks are larger on a CPU: four times that with the mirror
     rule, and with located impacts on constraints ``WIDE_CHUNK`` to ``NODES_WIDE_CHUNK`` paths where every device
-    (of every process) gets at least ``WIDE_CHUNK`` of them, so that each step resolves its crossings in one
-    batch; on a GPU half its memory, as far as 32-bit indexing allows: a GPU's time per step barely grows with the paths
-    in a chunk, so large chunks are what make it fast (``docs/speed.md``).
+    (of every process) gets at least ``WIDE_CHUNK`` of them, so that a step where many paths cross resolves them
+    in one batch; on a GPU half its memory, as far as 32-bit indexing allows: a GPU's time per step barely grows
+    with the paths in a chunk, so large chunks are what make it fast (``docs/speed.md``).
     """
     bytes_per_path = 4 * scene.float_dtype.itemsize * _values_per_path(scene)
     cpu = jax.local_devices()[0].platform == "cpu"
