@@ -17,6 +17,12 @@ from ._pytree import check_int
 _FLAG = re.compile(r"--xla_force_host_platform_device_count=(\d+)")
 
 
+def on_cpu() -> bool:
+    """Whether JAX computes on a CPU (its default backend): no accelerator, so a branch's predicate is read from
+    the same memory and chunks are sized for the CPU's caches."""
+    return jax.default_backend() == "cpu"
+
+
 def usable_cores() -> int:
     """The number of CPU cores this process may run on (its affinity mask where the OS reports one)."""
     if hasattr(os, "sched_getaffinity"):

@@ -36,8 +36,7 @@ iterations (``lax.cond``) once no path is pending, so the resolution is traced o
 ``max_impacts``, and a step without any crossing skips all of it. Chunks of ``WIDE_CHUNK`` paths or more
 resolve a first batch of up to ``n / 16`` crossing paths: an accelerator's (where every branch costs a read by
 the host) in every step without branches, a CPU's in the steps where more than ``n / 128`` paths cross. The
-``"mirror"`` method is the first-order "flip after the step" rule,
-kept for comparison.
+``"mirror"`` method is the first-order "flip after the step" rule, kept for comparison.
 """
 
 from __future__ import annotations
@@ -53,6 +52,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._constraints import dot, geometry, values
+from ._cpu import on_cpu
 from ._pytree import check_int, check_real
 
 
@@ -476,12 +476,6 @@ CROWDED_AT = 128
 BATCH_ROWS = 8
 
 
-def branches_are_cheap() -> bool:
-    """Whether a ``lax.cond`` costs little next to a step of a wide chunk: on a CPU, where no host reads its
-    predicate from an accelerator's memory."""
-    return jax.default_backend() == "cpu"
-
-
 def batch_rows(n: int, wide: bool) -> int:
     """Rows of one resolution batch in a chunk of ``n`` paths: ``ceil(n / 64)``, or ``ceil(n / WIDE_SHARE)`` in a
     wide chunk, rounded up to a multiple of ``BATCH_ROWS`` above it (XLA's CPU code took 1.8-2.8x as long per step
@@ -714,7 +708,7 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
         end = jnp.concatenate(y1, axis=1)
         if not wide:
             end = jax.lax.cond(jnp.any(todo), by_lanes, lambda end, _: end, end, todo)
-        elif branches_are_cheap():
+        elif on_cpu():  # a branch is cheap: no host reads its predicate from an accelerator's memory
             end = jax.lax.cond(jnp.sum(todo) > n // CROWDED_AT, wide_first, by_lanes, end, todo)
         else:
             end = wide_first(end, todo)

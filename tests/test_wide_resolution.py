@@ -12,7 +12,7 @@ from jdpim import _integrate
 
 def _states(scene, n, wide, monkeypatch, branch_free=True, **method):
     monkeypatch.setattr(_integrate, "WIDE_CHUNK", 64 if wide else 2**62)
-    monkeypatch.setattr(_integrate, "branches_are_cheap", lambda: not branch_free)
+    monkeypatch.setattr(_integrate, "on_cpu", lambda: not branch_free)
     jax.clear_caches()  # the threshold is read when the step is traced
     res = jdpim.solve(scene, jdpim.MonteCarlo(n_samples=n, seed=3, chunk_size=n, **method))
     return np.asarray(res.states)
@@ -53,7 +53,7 @@ def test_reverse_mode_through_the_wide_resolution(monkeypatch):
     from the barrier's side, every one crossing at once, so the lanes serve most of them too), against central
     differences of the same paths."""
     monkeypatch.setattr(_integrate, "WIDE_CHUNK", 16)
-    monkeypatch.setattr(_integrate, "branches_are_cheap", lambda: False)
+    monkeypatch.setattr(_integrate, "on_cpu", lambda: False)
     jax.clear_caches()
     scene = _one_dof(jdpim.GaussianNodes(), t_end=0.5, x0=1e-3, v0=-1.0)
 

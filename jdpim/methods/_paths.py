@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._cpu import host_memory
+from .._cpu import host_memory, on_cpu
 from .._distributions import elementary_ppf
 from .._excitation import GaussianNodes, gaussian_coefficients, random_function_coefficients, synthesize
 from .._integrate import WIDE_CHUNK, integrate
@@ -98,7 +98,7 @@ def default_chunk_size(scene: Scene, n_paths: int) -> int:
     with the paths in a chunk, so large chunks are what make it fast (``docs/speed.md``).
     """
     bytes_per_path = 4 * scene.float_dtype.itemsize * _values_per_path(scene)
-    cpu = jax.local_devices()[0].platform == "cpu"
+    cpu = on_cpu()
     cap = CPU_CHUNK_BYTES // scene.float_dtype.itemsize if cpu else n_paths
     if cpu and isinstance(scene.excitation, GaussianNodes):
         if scene.impacts.method == "mirror":
