@@ -235,6 +235,27 @@ def held_constraint(model, geo, q, v, e0, hold):
     return jnp.where(jnp.any(pressed), jnp.argmax(pressed), -1).astype(jnp.int32)
 
 
+@jax.custom_jvp
+def _stored(x):
+    """``x`` itself, computed once into memory on a CPU (derivatives pass through unchanged).
+
+    XLA's CPU loop fusion computes an elementwise value again inside the loop of every fusion that uses it (and
+    for every column of a ``(k, d)`` consumer), so the chains of a resolution (Newton iterations, the crossing
+    time, the RK4 redo) are recomputed many times over. A reduction is not fused into its consumers: the exact
+    ``max(x, lowest)`` over a stacked pair stores ``x`` (docs/speed.md, "Values stored once"). Elsewhere
+    (accelerators, unmeasured) ``x`` is returned.
+    """
+    if not on_cpu():
+        return x
+    low = -jnp.inf if jnp.issubdtype(x.dtype, jnp.floating) else jnp.iinfo(x.dtype).min
+    return jnp.max(jnp.stack([x, jnp.full_like(x, low)]), axis=0)
+
+
+@_stored.defjvp
+def _stored_jvp(primals, tangents):
+    return _stored(primals[0]), tangents[0]
+
+
 def locate_crossing(x0, v0, x1, v1, H, n_iter, on_barrier=None):
     """Root ``s`` in [0, 1] of the cubic Hermite interpolant of ``c = x - b`` over a step of length ``H``.
 
@@ -276,7 +297,7 @@ def locate_crossing(x0, v0, x1, v1, H, n_iter, on_barrier=None):
         d = df(s)
         sn = s - ps / jnp.where(d == 0, 1.0, d)
         # a converged s (its step rounds to zero) stays, but not s = 0: a step from the barrier seeks the next root
-        s = jnp.where(((sn > lo) & (sn < hi)) | ((sn == s) & (s > 0)), sn, 0.5 * (lo + hi))
+        s = _stored(jnp.where(((sn > lo) & (sn < hi)) | ((sn == s) & (s > 0)), sn, 0.5 * (lo + hi)))
     d = dp(s)
     s = s - p(s) / jnp.where(d == 0, 1.0, d)  # plain Newton step: derivative by the implicit function theorem
     return jnp.clip(s, 0.0, 1.0)
@@ -352,7 +373,7 @@ def _crossing_time(rule: ImpactRule, h, y0, tau0, y1, last, geo, held=None):
     span = jnp.where(crossing, (1.0 - tau0) * h, h)
     s_all = locate_crossing(rc0, dot(geo.normal, v0), rc1, dot(geo.normal, v1), span, rule.newton_iterations, on)
     j = jnp.zeros((), jnp.int32) if one else jnp.argmin(jnp.where(crossing, s_all, 2.0)).astype(jnp.int32)
-    return hit, j, tau0 + _pick(s_all, j) * (1.0 - tau0)
+    return hit, _stored(j), _stored(tau0 + _pick(s_all, j) * (1.0 - tau0))
 
 
 def first_crossing(model, rule: ImpactRule, h, y0, tau0, y1, last, e):
@@ -364,7 +385,7 @@ def first_crossing(model, rule: ImpactRule, h, y0, tau0, y1, last, e):
     """
     geo = geometry(model.stacked_constraints(), y0[0].dtype)
     hit, j, theta = _crossing_time(rule, h, y0, tau0, y1, last, geo)
-    return geo, hit, j, theta, rk4(model, *y0, e, h, tau0, theta)
+    return geo, hit, j, theta, tuple(map(_stored, rk4(model, *y0, e, h, tau0, theta)))
 
 
 def _resolve_one(model, rule: ImpactRule, h, y0, tau0, y1, last, e):
@@ -379,12 +400,13 @@ def _resolve_one(model, rule: ImpactRule, h, y0, tau0, y1, last, e):
     normal, position, r, push, onto, unit, keep, _ = (_pick(a, j) for a in geo)
     q_plus = dot(onto, qc) + position * unit  # on the plane c_j = 0
     v_plus = dot(keep, vc) + r * jnp.abs(dot(normal, vc)) * push  # generalised Newton law
+    q_plus, v_plus = _stored(q_plus), _stored(v_plus)
     qr, vr = rk4(model, q_plus, v_plus, e, h, theta, 1.0)
     if rule.stick_velocity > 0 and q0.shape[0] == 1:  # one degree of freedom: rest on the constraint
         rest = jnp.zeros_like(v0)
         pushes_in = dot(normal, model.state_acceleration(q_plus, rest, _forcing(e, theta))) <= 0
         stick = (r * jnp.abs(dot(normal, vc)) < rule.stick_velocity) & pushes_in
-        tau_d = departure(model, e, theta, normal, q_plus)  # rest at (q_plus, 0) until the force pulls away
+        tau_d = _stored(departure(model, e, theta, normal, q_plus))  # rest at (q_plus, 0) until the force pulls away
         qd, vd = rk4(model, q_plus, rest, e, h, tau_d, 1.0)
         qr, vr = jnp.where(stick, qd, qr), jnp.where(stick, vd, vr)
         v_plus, theta = jnp.where(stick, rest, v_plus), jnp.where(stick, tau_d, theta)
@@ -412,12 +434,12 @@ def _resolve_held(model, rule: ImpactRule, h, y0, tau0, y1, force, last, held, l
     geo = geometry(model.stacked_constraints(), q0.dtype)
     hit, j, theta = _crossing_time(rule, h, y0, tau0, y1, last, geo, held)
     hit = hit & located
-    s_off = turns_positive(jnp.stack([force[0], 0.5 * (force[1] + force[2]), force[3]]), 0.0)
+    s_off = _stored(turns_positive(jnp.stack([force[0], 0.5 * (force[1] + force[2]), force[3]]), 0.0))
     tau_off = tau0 + s_off * (1.0 - tau0)
     off_first = (held >= 0) & (s_off < 1) & (~hit | (tau_off <= theta))
     event = off_first | hit
-    tau_e = jnp.where(off_first, tau_off, jnp.where(hit, theta, 1.0))
-    q_e, v_e, _ = held_rk4(model, geo, q0, v0, e, h, tau0, tau_e, held)
+    tau_e = _stored(jnp.where(off_first, tau_off, jnp.where(hit, theta, 1.0)))
+    q_e, v_e = map(_stored, held_rk4(model, geo, q0, v0, e, h, tau0, tau_e, held)[:2])
     # the impact on j at theta: a bounce, or held from theta on
     normal, position, r, push, onto, unit, keep, _ = (_pick(a, j) for a in geo)
     q_plus = dot(onto, q_e) + position * unit
@@ -428,6 +450,7 @@ def _resolve_held(model, rule: ImpactRule, h, y0, tau0, y1, force, last, held, l
     impact = hit & ~off_first
     q_a = jnp.where(impact, q_plus, q_e)
     v_a = jnp.where(impact, jnp.where(stick, v_slide, v_slide + r * jnp.abs(u) * push), v_e)
+    q_a, v_a = _stored(q_a), _stored(v_a)
     held_after = jnp.where(impact & stick, j, -1).astype(jnp.int32)
     q_end, v_end, f_end = held_rk4(model, geo, q_a, v_a, e, h, tau_e, 1.0, held_after)
 

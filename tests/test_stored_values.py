@@ -1,0 +1,58 @@
+"""Values of the impact resolution stored once on a CPU (``_integrate._stored``): exact, with derivatives passed
+through, and without a bit of difference in the states."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jdpim
+from jdpim import _integrate
+
+
+@pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64, jnp.int32])
+def test_stored_is_the_value_itself(dtype):
+    with jax.enable_x64(dtype == jnp.float64):
+        if jnp.issubdtype(dtype, jnp.floating):
+            info = jnp.finfo(dtype)
+            x = jnp.array([-jnp.inf, jnp.inf, jnp.nan, -0.0, 0.0, info.min, info.max, info.tiny, -1.5], dtype)
+        else:
+            info = jnp.iinfo(dtype)
+            x = jnp.array([info.min, info.max, -1, 0, 7], dtype)
+        y = jax.jit(jax.vmap(_integrate._stored))(x)
+        assert y.dtype == x.dtype
+        np.testing.assert_array_equal(np.asarray(y).view(np.uint8), np.asarray(x).view(np.uint8))
+
+
+def test_stored_passes_derivatives_through():
+    x = jnp.array([-2.0, 0.0, 3.0])
+    _, tangent = jax.jvp(_integrate._stored, (x,), (jnp.array([1.0, -2.0, 0.5]),))
+    np.testing.assert_array_equal(tangent, [1.0, -2.0, 0.5])
+    np.testing.assert_array_equal(jax.grad(lambda x: jnp.sum(_integrate._stored(x) ** 2))(x), 2 * x)
+
+
+SCENES = {
+    "one degree of freedom, sticking": lambda: jdpim.Scene(
+        jdpim.VibroImpactOscillator(), noise=jdpim.WhiteNoise(D=0.08), t_end=1.0, dt=0.01, x0=1e-3, v0=-1.0
+    ),
+    "impact damper": lambda: jdpim.Scene(jdpim.impact_damper(), noise=jdpim.WhiteNoise(D=0.05), t_end=1.0, dt=0.01),
+    "held on the walls": lambda: jdpim.Scene(
+        jdpim.kanai_tajimi(jdpim.impact_damper(), omega_g=3.0, zeta_g=0.6),
+        noise=jdpim.WhiteNoise(D=0.05),
+        t_end=3.0,
+        dt=0.01,
+    ),
+}
+
+
+@pytest.mark.parametrize("name", SCENES)
+def test_storing_changes_no_state(name, monkeypatch):
+    """Monte Carlo states (64 paths, chunks of 32) with the values stored and with every store left out."""
+    scene = SCENES[name]()
+    method = jdpim.MonteCarlo(n_samples=64, seed=5, chunk_size=32)
+    stored = np.asarray(jdpim.solve(scene, method).states)
+    monkeypatch.setattr(_integrate, "_stored", lambda x: x)
+    jax.clear_caches()
+    plain = np.asarray(jdpim.solve(scene, method).states)
+    assert np.all(np.isfinite(stored))
+    np.testing.assert_array_equal(stored, plain)
