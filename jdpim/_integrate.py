@@ -237,7 +237,7 @@ def held_constraint(model, geo, q, v, e0, hold):
 
 @jax.custom_jvp
 def _stored(x):
-    """``x`` itself, computed once into memory on a CPU (derivatives pass through unchanged).
+    """``x`` itself, computed once into memory on a CPU (tangents pass through unchanged).
 
     XLA's CPU loop fusion computes an elementwise value again inside the loop of every fusion that uses it (and
     for every column of a ``(k, d)`` consumer), so the chains of a resolution (Newton iterations, the crossing
