@@ -33,7 +33,7 @@ def test_stored_passes_derivatives_through():
 
 
 def _one_dof():
-    """Every path crosses in its first step, and some stick (one degree of freedom)."""
+    """Every path crosses in its first step (one degree of freedom, sticking on as by default)."""
     return jdpim.Scene(
         jdpim.VibroImpactOscillator(), noise=jdpim.WhiteNoise(D=0.08), t_end=1.0, dt=0.01, x0=1e-3, v0=-1.0
     )
