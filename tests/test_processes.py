@@ -1,6 +1,7 @@
 """Monte Carlo and DPIM split over two local CPU processes with ``jax.distributed``: the states, densities and
 first-passage probabilities (a tracked quantity) are those of one process, bit for bit."""
 
+import os
 import socket
 import subprocess
 import sys
@@ -8,6 +9,7 @@ import sys
 import numpy as np
 
 import jdpim
+from jdpim.bench.processes import _core_shares
 
 WORKER = """
 import sys
@@ -65,3 +67,11 @@ def test_two_processes_give_the_results_of_one(tmp_path):
         assert int(got["process_count"]) == 2
         for name, value in one.items():
             np.testing.assert_array_equal(got[name], value, err_msg=f"process {i}: {name}")
+
+
+def test_the_bench_binds_each_process_to_its_own_share_of_the_cores(monkeypatch):
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {7, 4, 6, 5}, raising=False)
+    assert _core_shares(2, 2) == ["4,5", "6,7"]
+    assert _core_shares(4, 1) == ["4", "5", "6", "7"]
+    assert _core_shares(1, 1) == ["4"]
+    assert _core_shares(1, 4) == [""]  # every core: left unbound

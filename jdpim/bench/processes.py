@@ -3,8 +3,12 @@
 Scene: the reference oscillator (alpha = gamma = 0.03, r = 0.98, D = 0.03) from rest to ``t_end``; Monte Carlo
 with the spectral forcing and with :class:`jdpim.GaussianNodes` (no FFT), and DPIM. Each
 configuration starts its processes afresh (``python -m jdpim.bench.processes``, one coordinator on
-``127.0.0.1``): one process on one CPU device, one process on one device per core, and one process per core
-on one device each. Every process runs the job once to compile, then ``repeats`` times after a barrier
+``127.0.0.1``): one process on one CPU device, free to run on every core (the baseline) and bound to one
+core, one process on one device per core, and one process per core on one device each, each bound to its own
+core. A process is bound with ``os.sched_setaffinity`` before JAX starts its backend: XLA sizes a process's
+thread pools by the cores it may run on, so processes free to run on every core start more threads than there
+are cores, and contend when XLA splits the work of large chunks over them. Every process runs the job once to
+compile, then ``repeats`` times after a barrier
 (``multihost_utils.sync_global_devices``); the time is process 0's median, from the call to the ``x`` density
 of the last saved time on a grid (the states gathered on every process included). The densities of every
 configuration are compared with the first, bit for bit.
@@ -13,6 +17,7 @@ configuration are compared with the first, bit for bit.
 from __future__ import annotations
 
 import json
+import os
 import pathlib
 import socket
 import subprocess
@@ -32,7 +37,10 @@ def _free_port() -> int:
 
 
 def _worker(argv) -> None:
-    """One process: ``index count port t_end n_samples n_points repeats out`` (``count`` 1: no coordinator)."""
+    """One process: ``index count port t_end n_samples n_points repeats out [cores]`` (``count`` 1: no
+    coordinator; ``cores``: comma-separated CPU ids to bind the process to)."""
+    if len(argv) > 8:
+        os.sched_setaffinity(0, {int(c) for c in argv[8].split(",")})
     import jax
 
     index, count, port = int(argv[0]), int(argv[1]), argv[2]
@@ -69,12 +77,23 @@ def _worker(argv) -> None:
         pathlib.Path(out).write_text(json.dumps({"devices": len(jax.local_devices()), "rows": rows}))
 
 
-def _launch(processes: int, devices: int, args: tuple, out: pathlib.Path) -> dict:
+def _core_shares(processes: int, cores_per_process: int) -> list[str]:
+    """Contiguous shares of ``cores_per_process`` of this process's usable cores, one per process (``""``: all)."""
+    cores = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
+    if cores_per_process >= len(cores):
+        return [""] * processes
+    c = cores_per_process
+    return [",".join(map(str, cores[i * c : (i + 1) * c])) for i in range(processes)]
+
+
+def _launch(processes: int, devices: int, cores_per_process: int, args: tuple, out: pathlib.Path) -> dict:
     port = _free_port()
-    env = {**__import__("os").environ, "JAX_NUM_CPU_DEVICES": str(devices), "JAX_PLATFORMS": "cpu"}
+    env = {**os.environ, "JAX_NUM_CPU_DEVICES": str(devices), "JAX_PLATFORMS": "cpu"}
+    shares = _core_shares(processes, cores_per_process)
     procs = [
         subprocess.Popen(
-            [sys.executable, "-m", "jdpim.bench.processes", str(i), str(processes), str(port), *map(str, args), out],
+            [sys.executable, "-m", "jdpim.bench.processes", str(i), str(processes), str(port), *map(str, args), out]
+            + ([shares[i]] if shares[i] else []),
             env=env,
             stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT,
@@ -97,19 +116,24 @@ def run_processes(
     repeats: int = 3,
     log=print,
 ) -> list[str]:
-    """The table (``processes.json``, ``processes.md``) for 1 and ``usable_cores()`` processes and devices."""
+    """The table (``processes.json``, ``processes.md``) for 1 and ``usable_cores()`` processes and devices.
+
+    Rows ``(processes, devices per process, cores per process)``: one process on one device that may run on
+    every core (the baseline of the speed-ups), the same bound to one core, one process with one device per
+    core, and one process per core on one device, each bound to its core.
+    """
     cores = usable_cores()
-    configs = [(1, 1), (1, cores), (cores, 1)] if cores > 1 else [(1, 1)]
+    configs = [(1, 1, cores), (1, 1, 1), (1, cores, cores), (cores, 1, 1)] if cores > 1 else [(1, 1, 1)]
     out.mkdir(parents=True, exist_ok=True)
     results = []
-    for processes, devices in configs:
-        got = _launch(processes, devices, (t_end, n_samples, n_points, repeats), out / "processes_worker.json")
-        results.append((processes, devices, got["rows"]))
+    for processes, devices, per in configs:
+        got = _launch(processes, devices, per, (t_end, n_samples, n_points, repeats), out / "processes_worker.json")
+        results.append((processes, devices, per, got["rows"]))
     (out / "processes_worker.json").unlink()
-    base = results[0][2]
+    base = results[0][3]
     rows = []
-    for processes, devices, got in results:
-        row = {"processes": processes, "devices_per_process": devices}
+    for processes, devices, per, got in results:
+        row = {"processes": processes, "devices_per_process": devices, "cores_per_process": per}
         for name, n in (("monte_carlo", n_samples), ("monte_carlo_nodes", n_samples), ("dpim", n_points)):
             t = got[name]["median_s"]
             row[f"{name}_s"] = round(t, 3)
@@ -123,7 +147,8 @@ def run_processes(
     title = (
         f"Reference scene to t = {t_end:g} s (dt = 0.01, float32): Monte Carlo {n_samples} paths (spectral forcing; "
         f"`monte_carlo_nodes`: GaussianNodes, drawn inside the steps), DPIM {n_points} points; median of {repeats} "
-        f"warm runs including the x density; speed-up against 1 process on 1 device"
+        f"warm runs including the x density; speed-up against the first row (1 process on 1 device, free to run "
+        f"on every core); a process with fewer cores than the host is bound to its own"
     )
     (out / "processes.md").write_text("\n".join([title, "", *_table(rows, list(rows[0]))]) + "\n")
     return ["processes.json", "processes.md"]
