@@ -104,8 +104,8 @@ def test_single_impact_gives_the_saltation_matrix():
         def end(y):
             return jnp.concatenate(step(y[None, :1], y[None, 1:], e, rand), axis=1)[0]
 
-        jac = np.asarray(jax.jacfwd(end)(y0))
-        np.testing.assert_allclose(np.asarray(jax.jacrev(end)(y0)), jac, rtol=1e-12, atol=1e-12)  # reverse mode
+        jac = np.asarray(jax.jit(jax.jacfwd(end))(y0))
+        np.testing.assert_allclose(np.asarray(jax.jit(jax.jacrev(end))(y0)), jac, rtol=1e-12, atol=1e-12)  # reverse
     x0, v0 = (float(c) for c in y0)
     # exact flow: x(t) = x0 cos t + v0 sin t reaches b at the impact time t*
     t_star = optimize.brentq(lambda t: x0 * math.cos(t) + v0 * math.sin(t) - b, 0.0, h, xtol=1e-15)
