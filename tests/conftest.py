@@ -6,10 +6,11 @@ fixtures reused by many tests, and sizes are small. Heavier settings carry the `
 Two settings apply to the test processes only (the library leaves both to the user):
 
 - XLA:CPU compiles with its older fusion emitters (``--xla_cpu_use_fusion_emitters=false``), which
-  compile the impact resolution in about half the time; the code they emit runs slower, which a
-  suite of small sizes does not notice. Processes the suite starts (notebooks, command lines,
+  compile the suite's programs in a little over half the time; the code they emit runs slower, which
+  a suite of small sizes does not notice. Processes the suite starts (notebooks, command lines,
   several processes) inherit the flag. ``JDPIM_TEST_XLA_DEFAULTS=1`` runs the suite with XLA's
-  defaults, as users run the library. A JAX whose XLA does not know the flag runs with its defaults.
+  defaults, as users run the library; so does a JAX whose XLA does not know the flag, and an
+  ``XLA_FLAGS`` that sets the emitters itself is left as it is.
 - Python's cyclic garbage collector runs less often: tracing creates many short-lived objects.
 """
 
@@ -31,9 +32,10 @@ _FAST_COMPILE_FLAG = "--xla_cpu_use_fusion_emitters=false"
 
 def _use_fast_compile_flag():
     """Append the flag to ``XLA_FLAGS`` where this JAX's XLA accepts it (an unknown flag aborts XLA)."""
-    if os.environ.get("JDPIM_TEST_XLA_DEFAULTS") == "1":
+    given = os.environ.get("XLA_FLAGS", "")
+    if os.environ.get("JDPIM_TEST_XLA_DEFAULTS") == "1" or "xla_cpu_use_fusion_emitters" in given:
         return
-    flags = f"{os.environ.get('XLA_FLAGS', '')} {_FAST_COMPILE_FLAG}".strip()
+    flags = f"{given} {_FAST_COMPILE_FLAG}".strip()
     probe = subprocess.run(
         [sys.executable, "-c", "import jax.numpy as jnp; jnp.zeros(1).block_until_ready()"],
         env=dict(os.environ, XLA_FLAGS=flags, JAX_PLATFORMS="cpu"),
