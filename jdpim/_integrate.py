@@ -499,6 +499,11 @@ CROWDED_AT = 128
 BATCH_ROWS = 8
 
 
+def branch_free(n: int) -> bool:
+    """Whether a chunk of ``n`` paths resolves its crossings without branches: a wide chunk on an accelerator."""
+    return n >= WIDE_CHUNK and not on_cpu()
+
+
 def batch_rows(n: int, wide: bool) -> int:
     """Rows of one resolution batch in a chunk of ``n`` paths: ``ceil(n / 64)``, or ``ceil(n / WIDE_SHARE)`` in a
     wide chunk, rounded up to a multiple of ``BATCH_ROWS`` above it (XLA's CPU code took 1.8-2.8x as long per step
@@ -638,12 +643,14 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
         (``jnp.nonzero``) and gathered column by column, every round on every row; lanes of ``G = 16`` paths
         serve the crossings beyond it. On an accelerator that runs in every step without branches: every branch
         costs a read of its predicate by the host and kernels of its own, which set the cost of a step
-        (docs/speed.md). On a CPU a branch is cheap, and a wide batch costs as much whether 10 or 800 paths
-        cross: only a step where more than ``n / CROWDED_AT`` paths cross takes it (the impact damper's
-        rattling), any other the lanes of 64 (the reference scene's few crossings).
+        (docs/speed.md). There the paths at rest on the barrier (one degree of freedom) are served with the
+        crossing paths, and their batch restarts them where the force pulls them off. On a CPU a branch is
+        cheap, and a wide batch costs as much whether 10 or 800 paths cross: only a step where more than
+        ``n / CROWDED_AT`` paths cross takes it (the impact damper's rattling), any other the lanes of 64 (the
+        reference scene's few crossings).
         """
         n, d = y0[0].shape
-        wide = n >= WIDE_CHUNK
+        wide, unbranched = n >= WIDE_CHUNK, branch_free(n)
         per_path_h = jnp.ndim(h) != 0
         e = tuple(e) if isinstance(e, (tuple, list)) else tuple(e[:, i] for i in range(3))
         columns = (*y0, tau0[:, None], *y1, *e, rand) + ((h[:, None],) if per_path_h else ())
@@ -678,6 +685,11 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
             """Up to ``max_impacts`` impacts of each of the batch's paths: ``(k, 2 d)`` end states (``wide``: every
             round on every row, without branches)."""
             b0, t0, b1, be, br, bh, held_columns = unpack(rows)
+            if sticking and unbranched:  # its paths at rest start where the force pulls them off (see plain_step)
+                resting = jax.vmap(rests)(*b0, br)
+                t0 = jax.vmap(start_fraction)(*b0, be, br)
+                moved = per_path(free, bh)(*b0, be, br, t0)
+                b1 = tuple(jnp.where(_paths(resting, a), a, b) for a, b in zip(moved, b1, strict=True))
             if holding:
                 return jnp.concatenate(resolve_batch_held(b0, t0, b1, be, br, bh, held_columns, wide), axis=1)
             last = jnp.full(t0.shape, -1, jnp.int32)
@@ -728,22 +740,26 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
             return batches(one_batch((columns, end, todo, True), wide=True, in_order=True), wide=True)[1]
 
         todo = jax.vmap(to_locate)(y0, y1, rand) if held is None else jax.vmap(to_locate)(y0, y1, rand, held) | departs
+        if sticking and unbranched:
+            todo = todo | jax.vmap(rests)(*y0, rand)
         end = jnp.concatenate(y1, axis=1)
         if not wide:
             end = jax.lax.cond(jnp.any(todo), by_lanes, lambda end, _: end, end, todo)
-        elif on_cpu():  # a branch is cheap: no host reads its predicate from an accelerator's memory
-            end = jax.lax.cond(jnp.sum(todo) > n // CROWDED_AT, wide_first, by_lanes, end, todo)
-        else:
+        elif unbranched:
             end = wide_first(end, todo)
+        else:  # a CPU: a branch is cheap, no host reads its predicate from an accelerator's memory
+            end = jax.lax.cond(jnp.sum(todo) > n // CROWDED_AT, wide_first, by_lanes, end, todo)
         return end[:, :d], end[:, d:]
 
     def plain_step(q, v, e, rand, h):
         """One step of every path; ``h`` is the step length, shared (scalar) or per path ``(n,)``."""
         tau0 = jnp.zeros(q.shape[:1], q.dtype)
         # A path at rest starts at its own fraction of the step. A step without one takes the plain form (the
-        # forcing nodes themselves, the step's constants folded), which XLA keeps in fewer kernels.
+        # forcing nodes themselves, the step's constants folded), which XLA keeps in fewer kernels. An
+        # accelerator's compiler folds this branch into a select and takes the restart of every path in every
+        # step: there the resolution's batch restarts the paths at rest instead (resolve_crossings).
         start = per_path(free_from_start, h)
-        if sticking:
+        if sticking and not branch_free(q.shape[0]):
 
             def from_rest():
                 tau = jax.vmap(start_fraction)(q, v, e, rand)

@@ -26,6 +26,8 @@ def _one_dof(excitation, t_end=2.0, **start):
 SCENES = {
     # every path crosses in its first step: 256 crossings against a batch of 8, so the lanes serve the rest
     "all cross at once": lambda: _one_dof(jdpim.GaussianNodes(), x0=1e-3, v0=-1.0),
+    # every path starts at rest on the barrier: the batch restarts each where the force pulls it off
+    "at rest on the barrier": lambda: _one_dof(jdpim.GaussianNodes(), x0=0.0, v0=0.0),
     "spectral forcing": lambda: _one_dof(jdpim.SpectralRepresentation(), x0=0.5),
     "impact damper": lambda: jdpim.Scene(jdpim.impact_damper(), noise=jdpim.WhiteNoise(D=0.05), t_end=2.0, dt=0.01),
     "held on the walls": lambda: jdpim.Scene(
