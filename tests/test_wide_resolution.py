@@ -28,6 +28,15 @@ SCENES = {
     "all cross at once": lambda: _one_dof(jdpim.GaussianNodes(), x0=1e-3, v0=-1.0),
     # every path starts at rest on the barrier: the batch restarts each where the force pulls it off
     "at rest on the barrier": lambda: _one_dof(jdpim.GaussianNodes(), x0=0.0, v0=0.0),
+    # stiff steps split per path, from rest: each restarted path keeps its own sub-step length
+    "sub-steps from rest": lambda: jdpim.Scene(
+        jdpim.VibroImpactOscillator(alpha=0.03, gamma=10.0, r=0.8),
+        noise=jdpim.WhiteNoise(D=1.0),
+        t_end=1.0,
+        dt=0.05,
+        excitation=jdpim.GaussianNodes(),
+        substeps=jdpim.Substeps(),
+    ),
     "spectral forcing": lambda: _one_dof(jdpim.SpectralRepresentation(), x0=0.5),
     "impact damper": lambda: jdpim.Scene(jdpim.impact_damper(), noise=jdpim.WhiteNoise(D=0.05), t_end=2.0, dt=0.01),
     "held on the walls": lambda: jdpim.Scene(
