@@ -620,6 +620,11 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
             return jax.vmap(functools.partial(fn, h=h))
         return lambda *args: jax.vmap(lambda *a: fn(*a[:-1], h=a[-1]))(*args, h)
 
+    def from_rest(q, v, e, rand, h):
+        """The step of every path from its :func:`start_fraction` (0 for a path not at rest): ``(q, v, tau)``."""
+        tau = jax.vmap(start_fraction)(q, v, e, rand)
+        return (*per_path(free, h)(q, v, e, rand, tau), tau)
+
     def resolve_crossings(y0, tau0, y1, e, rand, h, held=None, force=None, departs=None):
         """Every located impact of the step: ``y1`` with each crossing path's impacts resolved (with ``held``,
         the constraint each path is held on, ``force``, its stage forces, and ``departs``, whether it lets go
@@ -687,8 +692,7 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
             b0, t0, b1, be, br, bh, held_columns = unpack(rows)
             if sticking and unbranched:  # its paths at rest start where the force pulls them off (see plain_step)
                 resting = jax.vmap(rests)(*b0, br)
-                t0 = jax.vmap(start_fraction)(*b0, be, br)
-                moved = per_path(free, bh)(*b0, be, br, t0)
+                *moved, t0 = from_rest(*b0, be, br, bh)
                 b1 = tuple(jnp.where(_paths(resting, a), a, b) for a, b in zip(moved, b1, strict=True))
             if holding:
                 return jnp.concatenate(resolve_batch_held(b0, t0, b1, be, br, bh, held_columns, wide), axis=1)
@@ -761,14 +765,12 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
         start = per_path(free_from_start, h)
         if sticking and not branch_free(q.shape[0]):
 
-            def from_rest():
-                tau = jax.vmap(start_fraction)(q, v, e, rand)
-                return (*per_path(free, h)(q, v, e, rand, tau), tau)
-
             def from_start():
                 return (*start(q, v, e, rand), tau0)
 
-            q1, v1, tau0 = jax.lax.cond(jnp.any(jax.vmap(rests)(q, v, rand)), from_rest, from_start)
+            q1, v1, tau0 = jax.lax.cond(
+                jnp.any(jax.vmap(rests)(q, v, rand)), lambda: from_rest(q, v, e, rand, h), from_start
+            )
         elif holding:
             q1, v1, force, held, departs = per_path(start_held, h)(q, v, e, rand)
         else:
