@@ -28,6 +28,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._normals import normals
 from ._pytree import check_int, check_real
 
 _SQRT2 = math.sqrt(2.0)
@@ -167,19 +168,16 @@ class NodeSource:
     dtype: object
 
     def _draw(self, counter, shape):
-        def one(key):
-            z = jax.random.normal(jax.random.fold_in(jax.random.wrap_key_data(key), counter), shape, jnp.float32)
-            scale = jnp.reshape(self.scale, (1,) * (z.ndim - 1) + self.scale.shape)
-            return jnp.sum(scale * z.astype(self.dtype)[..., None, :], axis=-1)
-
-        return jax.vmap(one)(self.keys)
+        """``(*shape[:-1], n, m)``: the path's normals of ``shape`` (last axis ``m``), key folded with ``counter``."""
+        z = jnp.moveaxis(normals(self.keys, shape, fold=counter), -1, -2).astype(self.dtype)
+        return jnp.einsum("...j,ij->...i", z, self.scale)
 
     def first(self):
         """Node 0 (the start of the first step), ``(n, m)``."""
         return self._draw(0, (self.scale.shape[0],))
 
     def steps(self, b):
-        """The middle and end nodes of the steps of block ``b``, ``(n, B, 2, m)``."""
+        """The middle and end nodes of the steps of block ``b``, ``(B, 2, n, m)``."""
         return self._draw(b + 1, (self.block, 2, self.scale.shape[0]))
 
 

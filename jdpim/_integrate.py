@@ -997,8 +997,8 @@ def integrate(
             """The forcing of step ``k`` at its start, middle and end, each ``(n, m)``; the carry to the next."""
             e_start, drawn = carry
             drawn = jax.lax.cond((k % block == 0) & (k > 0), lambda: excitation.steps(k // block), lambda: drawn)
-            mid_end = jax.lax.dynamic_index_in_dim(drawn, k % block, axis=1, keepdims=False)
-            return (e_start, mid_end[:, 0], mid_end[:, 1]), (mid_end[:, 1], drawn)
+            mid_end = jax.lax.dynamic_index_in_dim(drawn, k % block, axis=0, keepdims=False)
+            return (e_start, mid_end[0], mid_end[1]), (mid_end[1], drawn)
 
     else:
         e_first = ()
