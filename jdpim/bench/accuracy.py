@@ -29,7 +29,7 @@ import jax
 import numpy as np
 
 from .. import exact, metrics
-from .._excitation import SpectralRepresentation
+from .._excitation import GaussianNodes, SpectralRepresentation
 from .._models import VibroImpactOscillator
 from .._noise import WhiteNoise
 from .._scene import Scene
@@ -75,7 +75,9 @@ def elastic_scene(t_end: float, dt: float, excitation: SpectralRepresentation | 
     return _scene(VibroImpactOscillator(alpha=ALPHA, gamma=None, r=1.0), t_end, dt, excitation, scene_kw)
 
 
-def paper_scene(t_end: float, dt: float, excitation: SpectralRepresentation | None = None, **scene_kw) -> Scene:
+def paper_scene(
+    t_end: float, dt: float, excitation: SpectralRepresentation | GaussianNodes | None = None, **scene_kw
+) -> Scene:
     """The reference example (alpha = gamma = 0.03, r = 0.98, D = 0.03), saved at t = 10 s (where ``t_end`` is later)
     and t_end."""
     return _scene(VibroImpactOscillator(alpha=ALPHA, gamma=GAMMA, r=R), t_end, dt, excitation, scene_kw)

@@ -4,7 +4,8 @@ The baseline (:func:`numpy_mcs`) is the fastest plain NumPy we could write for t
 ufuncs on contiguous ``(n_paths,)`` arrays, half-step Gaussian forcing from ``Generator(SFC64)``, the
 mirror rule at the barrier, timed at 1e3, 1e4 and 1e5 paths per batch in float32 and float64 in the
 same run; the best batch of each dtype is the baseline of jdpim's rows of that dtype (``x_numpy``).
-jdpim's Monte Carlo is timed with its own mirror rule too (``ImpactRule(method="mirror")``), like for like.
+jdpim's Monte Carlo is timed with its own mirror rule too (``ImpactRule(method="mirror")``), like for like,
+and with its noise drawn inside the steps (``GaussianNodes``, the baseline's kind of forcing; ``forcing`` column).
 The plain JAX baseline (:func:`jax_mcs`) is the same scheme as one jitted ``lax.scan`` on one device, at the
 same batches (``x_jax``): what the library's machinery (located impacts, chunks, devices, saved times,
 non-finite accounting) costs or gains over the few lines a JAX user would write.
@@ -14,8 +15,8 @@ Protocol (``timing.timed``): AOT compile (timed apart), one warm-up run, ``repea
 Each configuration runs on one device, and again on every local device when there are several (as
 ``python -m jdpim.bench`` sets up on a multi-core CPU: one device per core).
 The split times the two stages of one chunk on their own (excitation synthesis; the rest of the
-chunk, mostly integration), times the number of chunks, and the densities (``Result.pdf`` of x and v
-on 481 / 961 points at t_end).
+chunk, mostly integration; spectral forcing only), times the number of chunks, and the densities
+(``Result.pdf`` of x and v on 481 / 961 points at t_end).
 Peak memory is the process's resident high-water mark (``resource.getrusage(...).ru_maxrss``), read
 after each row: it only grows, so a row's figure bounds that row's own peak from above.
 """
@@ -35,7 +36,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._excitation import synthesize
+from .._excitation import GaussianNodes, synthesize
 from .._integrate import ImpactRule
 from ..methods._paths import _path_inputs, _simulate_chunk, dpim_inputs, monte_carlo_inputs
 from .accuracy import ALPHA, GAMMA, D, R, grids, paper_scene
@@ -318,19 +319,21 @@ def run_speed(out: pathlib.Path, *, quick: bool = False, log=print) -> list[str]
         log(f"[speed] plain JAX baseline {dtype} ...")
         jax_rows += jax_baseline(dtype, n_steps // 10 if quick else n_steps, log=log)
         best_jax[dtype] = max((r for r in jax_rows if r["dtype"] == dtype), key=lambda r: r["path_steps_per_s"])
-        configs = [("dpim", 1000, "locate")] + [("monte_carlo", m, "locate") for m in mcs_sizes]
-        configs.append(("monte_carlo", 10_000, "mirror"))
-        for method, n, impacts in configs:
-            scene = paper_scene(T_END, DT, dtype=dtype, impacts=ImpactRule(method=impacts))
+        configs = [("dpim", 1000, "locate", "spectral")] + [("monte_carlo", m, "locate", "spectral") for m in mcs_sizes]
+        configs += [("monte_carlo", 10_000, "mirror", "spectral"), ("monte_carlo", 10_000, "locate", "nodes")]
+        for method, n, impacts, forcing in configs:
+            excitation = GaussianNodes() if forcing == "nodes" else None
+            scene = paper_scene(T_END, DT, excitation, dtype=dtype, impacts=ImpactRule(method=impacts))
             for devices in device_sets:
                 n_dev = 1 if devices is None else len(devices)
-                log(f"[speed] {dtype} {method} n={n} impacts={impacts} on {n_dev} device(s) ...")
+                log(f"[speed] {dtype} {method} n={n} impacts={impacts} forcing={forcing} on {n_dev} device(s) ...")
                 res, tm = timed(method, scene, n, repeats=repeats if n <= 10_000 else 1, devices=devices)
-                row = {"dtype": dtype, "impacts": impacts, **tm.row()}
-                if n <= 10_000 and devices is None:  # the split of one chunk of the same size
+                row = {"dtype": dtype, "impacts": impacts, "forcing": forcing, **tm.row()}
+                if n <= 10_000 and devices is None and forcing == "spectral":  # the split of one chunk of the same size
                     inputs = dpim_inputs(scene, n) if method == "dpim" else monte_carlo_inputs(scene, n)
                     chunk = inputs[0][: inputs[2]]
                     row.update(split(scene, chunk, method, repeats, -(-n // inputs[2])))
+                if n <= 10_000 and devices is None:
                     row["densities_s"] = round(density_time(res, repeats), 4)
                 row["x_numpy"] = round(row["path_steps_per_s"] / best[dtype]["path_steps_per_s"], 2)
                 row["x_jax"] = round(row["path_steps_per_s"] / best_jax[dtype]["path_steps_per_s"], 2)
@@ -362,6 +365,7 @@ def run_speed(out: pathlib.Path, *, quick: bool = False, log=print) -> list[str]
         "dtype",
         "method",
         "impacts",
+        "forcing",
         "n_paths",
         "devices",
         "compile_s",
