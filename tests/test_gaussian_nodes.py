@@ -58,22 +58,24 @@ def test_dpim_refuses_and_bad_settings_fail_in_one_line():
         jdpim.Scene(jdpim.VibroImpactOscillator(), excitation="nodes")
 
 
-def test_cpu_chunks_with_located_impacts_are_wide_only_where_every_device_fills_one():
-    """On a CPU, Monte Carlo with the noise drawn inside the steps and located impacts takes chunks of
-    ``WIDE_CHUNK`` to ``NODES_WIDE_CHUNK`` paths (one wide batch of crossings per step) where every device gets
-    at least ``WIDE_CHUNK`` paths; otherwise, without constraints, or with the spectral forcing it keeps the
-    small chunks."""
+def test_cpu_chunks_with_the_noise_drawn_inside_the_steps_are_large():
+    """On a CPU, Monte Carlo with the noise drawn inside the steps takes chunks of up to ``NODES_CHUNK`` paths,
+    with or without constraints; those where every device gets at least ``WIDE_CHUNK`` paths are wide (one batch
+    of crossings per step). With the spectral forcing it keeps the small chunks."""
     from jdpim._integrate import WIDE_CHUNK
-    from jdpim.methods._paths import CPU_CHUNK_BYTES, NODES_WIDE_CHUNK, balanced_chunk, default_chunk_size
+    from jdpim.methods._paths import CPU_CHUNK_BYTES, NODES_CHUNK, balanced_chunk, default_chunk_size
 
     small = CPU_CHUNK_BYTES // 4
     devices = jax.device_count()
     damper = jdpim.Scene(jdpim.impact_damper(), noise=jdpim.WhiteNoise(D=0.01), t_end=1.0, dt=0.01, excitation=NODES)
     for n in (devices * WIDE_CHUNK, 10**5, 10**6 + 1):
         chunk = default_chunk_size(damper, n)
-        assert WIDE_CHUNK <= chunk <= NODES_WIDE_CHUNK, (n, chunk)
+        assert WIDE_CHUNK <= chunk <= NODES_CHUNK, (n, chunk)
         assert balanced_chunk(n, chunk, devices) >= WIDE_CHUNK, (n, chunk)  # each device's equal chunks stay wide
-    assert default_chunk_size(damper, devices * WIDE_CHUNK - 1) <= small
+    for n in (1, 700, devices * WIDE_CHUNK - 1):
+        assert default_chunk_size(damper, n) == n
     free = damper.replace(model=jdpim.VibroImpactOscillator(barrier=None))
-    assert default_chunk_size(free, 10**5) <= small
+    assert default_chunk_size(free, 10**5) > small
+    mirrored = damper.replace(impacts=jdpim.ImpactRule(method="mirror"))
+    assert default_chunk_size(mirrored, 10**5) > small
     assert default_chunk_size(damper.replace(excitation=jdpim.SpectralRepresentation()), 10**5) <= small

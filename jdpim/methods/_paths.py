@@ -34,12 +34,10 @@ DEVICE_MEMORY_SHARE = 0.5  # share of an accelerator's memory one chunk's excita
 # most bytes of one per-path number per chunk on a CPU (512 float32 or 256 float64 paths): above about
 # 2.1 KiB the cost per path-step rises 1.2-2.5x (docs/speed.md)
 CPU_CHUNK_BYTES = 2048
-# with the noise drawn inside the steps (no excitation array) and the mirror rule, larger chunks pay on a CPU
-# (docs/speed.md)
-NODES_MIRROR_CHUNK_FACTOR = 4
-# with that noise and located impacts, chunks of at least WIDE_CHUNK paths (up to this many) pay on a CPU where
-# every device has that many paths: a step where many of them cross resolves them in one wide batch (docs/mdof.md)
-NODES_WIDE_CHUNK = 2 * WIDE_CHUNK
+# most paths per chunk on a CPU with the noise drawn inside the steps (no excitation array): larger chunks pay
+# there (docs/speed.md, "Chunk and block sizes on a CPU"), and chunks of WIDE_CHUNK paths or more resolve a step
+# where many of them cross in one wide batch (docs/mdof.md)
+NODES_CHUNK = 2 * WIDE_CHUNK
 
 
 class NonFiniteWarning(RuntimeWarning):
@@ -91,20 +89,16 @@ def default_chunk_size(scene: Scene, n_paths: int) -> int:
 
     On a CPU that is 512 MiB (about 800 paths of the reference scene), and at most 512 paths in float32
     or 256 in float64 (``CPU_CHUNK_BYTES``), above which XLA's CPU code takes longer per path. With
-    :class:`jdpim.GaussianNodes` (no excitation array) chunks are larger on a CPU: four times that with the mirror
-    rule, and with located impacts on constraints ``WIDE_CHUNK`` to ``NODES_WIDE_CHUNK`` paths where every device
-    (of every process) gets at least ``WIDE_CHUNK`` of them, so that a step where many paths cross resolves them
-    in one batch; on a GPU half its memory, as far as 32-bit indexing allows: a GPU's time per step barely grows
-    with the paths in a chunk, so large chunks are what make it fast (``docs/speed.md``).
+    :class:`jdpim.GaussianNodes` (no excitation array) a CPU's chunks hold up to ``NODES_CHUNK`` paths instead;
+    those of ``WIDE_CHUNK`` paths or more resolve a step where many paths cross in one batch. On a GPU half its
+    memory, as far as 32-bit indexing allows: a GPU's time per step barely grows with the paths in a chunk, so
+    large chunks are what make it fast (``docs/speed.md``).
     """
     bytes_per_path = 4 * scene.float_dtype.itemsize * _values_per_path(scene)
     cpu = on_cpu()
     cap = CPU_CHUNK_BYTES // scene.float_dtype.itemsize if cpu else n_paths
     if cpu and isinstance(scene.excitation, GaussianNodes):
-        if scene.impacts.method == "mirror":
-            cap *= NODES_MIRROR_CHUNK_FACTOR
-        elif scene.model.stacked_constraints() is not None and n_paths // jax.device_count() >= WIDE_CHUNK:
-            cap = NODES_WIDE_CHUNK  # the paths are split over every process's devices
+        cap = NODES_CHUNK
     largest = max(1, min(n_paths, cap, memory_budget() // bytes_per_path, _largest_chunk(scene)))
     n_chunks = -(-n_paths // largest)
     return -(-n_paths // n_chunks)  # equal chunks: the least padding
