@@ -11,7 +11,7 @@ import pytest
 
 import jdpim
 from jdpim import exact
-from jdpim.bench.speed import jax_mcs, numpy_mcs
+from jdpim.bench.speed import JAX_KEY_IMPLS, jax_mcs, numpy_mcs
 
 N_PATHS, T = 20_000, 10.0
 
@@ -47,9 +47,11 @@ def test_baseline_matches_jdpim_reference_scene():
         assert abs(m1 - m2) < 4 * np.hypot(se1, se2), (m1, m2, se1, se2)
 
 
-def test_plain_jax_baseline_matches_the_numpy_baseline():
-    """The plain JAX scan of the same scheme: E[x^2], E[v^2] of the reference scene at t = 10 s agree with NumPy's."""
-    x, v = (np.asarray(a, np.float64) for a in jax_mcs(N_PATHS, int(T / 0.01), jax.random.key(3)))
+@pytest.mark.parametrize("impl", JAX_KEY_IMPLS)
+def test_plain_jax_baseline_matches_the_numpy_baseline(impl):
+    """The plain JAX scan of the same scheme: E[x^2], E[v^2] of the reference scene at t = 10 s agree with NumPy's,
+    with each of the key implementations the bench times."""
+    x, v = (np.asarray(a, np.float64) for a in jax_mcs(N_PATHS, int(T / 0.01), jax.random.key(3, impl=impl)))
     xn, vn = numpy_mcs(N_PATHS, t_end=T, seed=3)
     assert np.all(x >= 0)
     for ours, theirs in ((x**2, xn**2), (v**2, vn**2)):

@@ -7,8 +7,9 @@ same run; the best batch of each dtype is the baseline of jdpim's rows of that d
 jdpim's Monte Carlo is timed with its own mirror rule too (``ImpactRule(method="mirror")``), like for like,
 and with its noise drawn inside the steps (``GaussianNodes``, the baseline's kind of forcing; ``forcing`` column).
 The plain JAX baseline (:func:`jax_mcs`) is the same scheme as one jitted ``lax.scan`` on one device, at the
-same batches (``x_jax``): what the library's machinery (located impacts, chunks, devices, saved times,
-non-finite accounting) costs or gains over the few lines a JAX user would write.
+same batches and with JAX's threefry and rbg keys, the best of them (``x_jax``): what the library's machinery
+(located impacts, chunks, devices, saved times, non-finite accounting) costs or gains over the few lines a JAX
+user would write.
 
 Reference scene: alpha = gamma = 0.03, r = 0.98, D = 0.03, t_end = 200 s, dt = 0.01 s (2e4 steps).
 Protocol (``timing.timed``): AOT compile (timed apart), one warm-up run, ``repeats`` warm runs, median.
@@ -44,6 +45,8 @@ from .timing import timed
 
 T_END, DT = 200.0, 0.01
 BASELINE_BATCHES = (1_000, 10_000, 100_000)
+# JAX's generators that the plain JAX baseline is timed with (its best is the baseline): "rbg" was the faster on a CPU
+JAX_KEY_IMPLS = ("threefry2x32", "rbg")
 
 
 def _peak_mib() -> float:
@@ -234,11 +237,11 @@ def jax_mcs(n_paths: int, n_steps: int, key, *, dtype: str = "float32", dt: floa
 
 
 def jax_baseline(dtype: str, n_steps: int, *, log=print) -> list[dict]:
-    """Path-steps per second of :func:`jax_mcs` on one device for each batch in ``BASELINE_BATCHES``: compile
-    (timed apart), one warm-up run, 3 timed runs, median."""
+    """Path-steps per second of :func:`jax_mcs` on one device for each batch in ``BASELINE_BATCHES`` and each key
+    implementation in ``JAX_KEY_IMPLS``: compile (timed apart), one warm-up run, 3 timed runs, median."""
     rows = []
-    for n in BASELINE_BATCHES:
-        key = jax.random.key(0)
+    for impl, n in ((impl, n) for impl in JAX_KEY_IMPLS for n in BASELINE_BATCHES):
+        key = jax.random.key(0, impl=impl)
         t0 = time.perf_counter()
         compiled = jax_mcs.lower(n, n_steps, key, dtype=dtype).compile()
         compile_s = time.perf_counter() - t0
@@ -246,6 +249,7 @@ def jax_baseline(dtype: str, n_steps: int, *, log=print) -> list[dict]:
         rows.append(
             {
                 "dtype": dtype,
+                "key": impl,
                 "n_paths": n,
                 "n_steps": n_steps,
                 "compile_s": round(compile_s, 2),
@@ -382,12 +386,14 @@ def run_speed(out: pathlib.Path, *, quick: bool = False, log=print) -> list[str]
     lines.append("\nNumPy baseline (`numpy_mcs`: RK4, half-step Gaussian forcing, mirror rule; one core), per batch:\n")
     lines += _table(baseline_rows, ["dtype", "n_paths", "n_steps", "repeats", "median_s", "path_steps_per_s"])
     lines.append("\nPlain JAX baseline (`jax_mcs`: the same scheme as one jitted `lax.scan`; one device), per batch:\n")
-    lines += _table(jax_rows, ["dtype", "n_paths", "n_steps", "compile_s", "median_s", "path_steps_per_s"])
+    lines += _table(jax_rows, ["dtype", "key", "n_paths", "n_steps", "compile_s", "median_s", "path_steps_per_s"])
     for dtype, b in best.items():
         lines.append(f"\nBaseline {dtype} (`x_numpy` of the {dtype} rows): {b['n_paths']} paths per batch, ")
         lines[-1] += f"{b['path_steps_per_s']:.3g} path-steps/s."
         if dtype in best_jax:
-            lines[-1] += f" Plain JAX (`x_jax`): {best_jax[dtype]['n_paths']} paths per batch, "
+            lines[-1] += (
+                f" Plain JAX (`x_jax`): {best_jax[dtype]['n_paths']} paths per batch, {best_jax[dtype]['key']} keys, "
+            )
             lines[-1] += f"{best_jax[dtype]['path_steps_per_s']:.3g} path-steps/s."
     lines.append(f"\nLoad average (1, 5, 15 min) after the baseline: {load_after_baseline}; ")
     lines[-1] += f"at the end: {info['load_average']}."
