@@ -25,6 +25,7 @@ after each row: it only grows, so a row's figure bounds that row's own peak from
 from __future__ import annotations
 
 import functools
+import itertools
 import json
 import os
 import pathlib
@@ -240,7 +241,7 @@ def jax_baseline(dtype: str, n_steps: int, *, log=print) -> list[dict]:
     """Path-steps per second of :func:`jax_mcs` on one device for each batch in ``BASELINE_BATCHES`` and each key
     implementation in ``JAX_KEY_IMPLS``: compile (timed apart), one warm-up run, 3 timed runs, median."""
     rows = []
-    for impl, n in ((impl, n) for impl in JAX_KEY_IMPLS for n in BASELINE_BATCHES):
+    for impl, n in itertools.product(JAX_KEY_IMPLS, BASELINE_BATCHES):
         key = jax.random.key(0, impl=impl)
         t0 = time.perf_counter()
         compiled = jax_mcs.lower(n, n_steps, key, dtype=dtype).compile()
