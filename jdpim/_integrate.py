@@ -907,9 +907,12 @@ class Impacts(Tracker):
     shape ``(2 + K,)`` for ``K + 1`` edges (``K = 0`` without edges).
 
     A step has an impact where its free RK4 step (the integrator's trial step) ends beyond a constraint and
-    the path did not start the step at rest or held on one. The impact speed is ``-n . v`` (normal to the constraint,
-    relative for a mass-mass contact) at the first crossing, located as the integrator locates it; speeds
-    outside ``edges`` are counted as impacts but in no bin. Several impacts in one step count once.
+    the path did not start the step at rest or held on one. The impact speed is ``|n . v|`` (normal to the
+    constraint, relative for a mass-mass contact; the speed the impact law reverses) at the first crossing, located
+    as the integrator locates it: at a grazing crossing the located state's normal velocity can have the wrong sign
+    by the step's local error (under Gaussian node forcing 0.12 % of the impacts of a linear oscillator, all slower
+    than 0.003). Speeds outside ``edges`` are counted as impacts but in no bin. Several impacts in one step count
+    once.
     """
 
     rule: ImpactRule
@@ -928,7 +931,7 @@ class Impacts(Tracker):
         trial = rk4(model, q, v, e, h)
         _, hit, j, _, (_, vc) = first_crossing(model, self.rule, h, (q, v), jnp.zeros((), q.dtype), trial, -1, e)
         impact = hit & ~resting
-        speed = -dot(_pick(geo.normal, j), vc)
+        speed = jnp.abs(dot(_pick(geo.normal, j), vc))
         edges = jnp.asarray(self.edges, q.dtype).reshape(-1)
         bins = impact & (speed >= edges[:-1]) & (speed < edges[1:]) if edges.size else jnp.zeros((0,), bool)
         new = jnp.concatenate([jnp.stack([impact, impact]), bins]).astype(q.dtype)

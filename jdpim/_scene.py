@@ -19,6 +19,8 @@ from ._models import AbstractOscillator, AbstractSystem, Oscillator, n_sources_o
 from ._noise import WhiteNoise
 from ._pytree import array_leaf, check_real, concrete, pytree_dataclass, real_array, static_field
 
+# each sampling method's excitation where the scene leaves it to the method (excitation=None)
+DEFAULT_EXCITATION = {"dpim": SpectralRepresentation, "monte_carlo": GaussianNodes}
 NOISE_PARAMETERS = ("D",)  # parameters of the excitation, beside the model's
 _GRID_TOL = 1e-6  # relative tolerance (in steps) for times that must lie on the time grid
 
@@ -42,8 +44,10 @@ class Scene:
         x0, v0: initial displacement and velocity (traced); ``x0=None`` starts at the barrier (or 0).
         random: random system parameters, ``{name: Normal(...) | Uniform(...)}``, where ``name`` is a
             model field or ``"x0"``/``"v0"``. They become extra DPIM input dimensions.
-        excitation: how the white noise is generated: ``jdpim.SpectralRepresentation()`` (the default; DPIM
-            needs it) or ``jdpim.GaussianNodes()`` (Monte Carlo: Gaussian values drawn inside the steps).
+        excitation: how the white noise is generated: ``jdpim.SpectralRepresentation()`` (DPIM needs it; Monte
+            Carlo may use it) or ``jdpim.GaussianNodes()`` (Monte Carlo: Gaussian values drawn inside the steps),
+            or ``None`` (default) for each method's own (:meth:`excitation_for`): the spectral representation
+            for DPIM, Gaussian nodes for Monte Carlo, as accurate and cheaper (docs/speed.md).
         impacts: impact-resolution settings.
         substeps: sub-stepping of stiff steps (cubic damping at large velocities), e.g. ``jdpim.Substeps()``;
             ``None`` (default) traces none: blow-up is then counted and warned about (``NonFiniteWarning``).
@@ -65,7 +69,7 @@ class Scene:
     dt: float = static_field(default=0.01)
     save_at: tuple = static_field(default=None)
     random: Any = static_field(default=())
-    excitation: SpectralRepresentation | GaussianNodes = static_field(default_factory=SpectralRepresentation)
+    excitation: SpectralRepresentation | GaussianNodes | None = static_field(default=None)
     impacts: ImpactRule = static_field(default_factory=ImpactRule)
     substeps: Substeps | None = static_field(default=None)
     dtype: str | None = static_field(default=None)
@@ -97,9 +101,10 @@ class Scene:
             ("substeps", Substeps),
         )
         for name, kind in kinds:
-            if not isinstance(getattr(self, name), kind) and not (name == "substeps" and self.substeps is None):
+            optional = name in ("excitation", "substeps")  # None: the method's excitation; no sub-steps
+            if not isinstance(getattr(self, name), kind) and not (optional and getattr(self, name) is None):
                 what = " or jdpim.".join(k.__name__ for k in (kind if isinstance(kind, tuple) else (kind,)))
-                raise TypeError(f"{name} must be a jdpim.{what}, got {getattr(self, name)!r}")
+                raise TypeError(f"{name} must be a jdpim.{what}{' or None' * optional}, got {getattr(self, name)!r}")
         model = self.model
         n_constraints = _n_constraints(model)
         if self.impacts.hold is None and getattr(model, "dimension", 1) > 1 and n_constraints:
@@ -211,8 +216,20 @@ class Scene:
     def float_dtype(self):
         return jnp.zeros(()).dtype if self.dtype is None else jnp.dtype(self.dtype)
 
+    def excitation_for(self, method: str) -> SpectralRepresentation | GaussianNodes:
+        """The excitation that ``method`` (``"dpim"`` or ``"monte_carlo"``) integrates with: ``excitation``, or
+        where that is ``None`` the method's own, ``SpectralRepresentation()`` for DPIM and ``GaussianNodes()``
+        for Monte Carlo."""
+        if method not in DEFAULT_EXCITATION:
+            raise ValueError(f"method must be one of {tuple(DEFAULT_EXCITATION)}, got {method!r}")
+        return DEFAULT_EXCITATION[method]() if self.excitation is None else self.excitation
+
     def spectral_grid(self) -> SpectralGrid:
-        return self.excitation.grid(self.t_end, self.dt)
+        """The FFT grid of the scene's spectral representation (the default one where ``excitation`` is ``None``)."""
+        excitation = self.excitation_for("dpim")
+        if not isinstance(excitation, SpectralRepresentation):
+            raise ValueError(f"the scene's excitation is {excitation!r}: it has no spectral grid")
+        return excitation.grid(self.t_end, self.dt)
 
     def input_distributions(self) -> tuple:
         """Distributions of the DPIM input space: ``(Theta1, Theta2)`` per source, then random parameters."""

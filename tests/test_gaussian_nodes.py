@@ -54,8 +54,30 @@ def test_dpim_refuses_and_bad_settings_fail_in_one_line():
         jdpim.solve(scene, jdpim.DPIM(n_points=10))
     with pytest.raises(ValueError, match="block must be an integer >= 1"):
         jdpim.GaussianNodes(block=0)
-    with pytest.raises(TypeError, match="excitation must be a jdpim.SpectralRepresentation or jdpim.GaussianNodes"):
+    with pytest.raises(TypeError, match="excitation must be a jdpim.SpectralRepresentation or jdpim.GaussianNodes or"):
         jdpim.Scene(jdpim.VibroImpactOscillator(), excitation="nodes")
+    with pytest.raises(ValueError, match="method must be one of"):
+        scene.excitation_for("path_integration")
+
+
+def test_each_method_takes_its_own_forcing_where_the_scene_leaves_it():
+    """``Scene(excitation=None)``, the default: Monte Carlo runs on Gaussian nodes and DPIM on the default spectral
+    representation, giving the states of those forcings named explicitly, bit for bit."""
+    scene = jdpim.Scene(jdpim.VibroImpactOscillator(), noise=jdpim.WhiteNoise(D=0.03), t_end=2.0, dt=0.01)
+    assert scene.excitation is None
+    assert scene.excitation_for("monte_carlo") == NODES
+    assert scene.excitation_for("dpim") == jdpim.SpectralRepresentation()
+    spectral = scene.replace(excitation=jdpim.SpectralRepresentation())
+    assert scene.spectral_grid() == spectral.spectral_grid()
+    with pytest.raises(ValueError, match="has no spectral grid"):
+        scene.replace(excitation=NODES).spectral_grid()
+    mc = jdpim.MonteCarlo(n_samples=64, seed=3)
+    runs = {
+        "mc": (jdpim.solve(scene, mc), jdpim.solve(scene.replace(excitation=NODES), mc)),
+        "dpim": (jdpim.solve(scene, jdpim.DPIM(n_points=64)), jdpim.solve(spectral, jdpim.DPIM(n_points=64))),
+    }
+    for a, b in runs.values():
+        np.testing.assert_array_equal(np.asarray(a.states), np.asarray(b.states))
 
 
 def test_cpu_chunks_with_the_noise_drawn_inside_the_steps_are_large():
@@ -69,13 +91,16 @@ def test_cpu_chunks_with_the_noise_drawn_inside_the_steps_are_large():
     devices = jax.device_count()
     damper = jdpim.Scene(jdpim.impact_damper(), noise=jdpim.WhiteNoise(D=0.01), t_end=1.0, dt=0.01, excitation=NODES)
     for n in (devices * WIDE_CHUNK, 10**5, 10**6 + 1):
-        chunk = default_chunk_size(damper, n)
+        chunk = default_chunk_size(damper, n, "monte_carlo")
         assert WIDE_CHUNK <= chunk <= NODES_CHUNK, (n, chunk)
         assert balanced_chunk(n, chunk, devices) >= WIDE_CHUNK, (n, chunk)  # each device's equal chunks stay wide
     for n in (1, 700, devices * WIDE_CHUNK - 1):
-        assert default_chunk_size(damper, n) == n
+        assert default_chunk_size(damper, n, "monte_carlo") == n
     free = damper.replace(model=jdpim.VibroImpactOscillator(barrier=None))
-    assert default_chunk_size(free, 10**5) > small
+    assert default_chunk_size(free, 10**5, "monte_carlo") > small
     mirrored = damper.replace(impacts=jdpim.ImpactRule(method="mirror"))
-    assert default_chunk_size(mirrored, 10**5) > small
-    assert default_chunk_size(damper.replace(excitation=jdpim.SpectralRepresentation()), 10**5) <= small
+    assert default_chunk_size(mirrored, 10**5, "monte_carlo") > small
+    assert default_chunk_size(damper.replace(excitation=jdpim.SpectralRepresentation()), 10**5, "monte_carlo") <= small
+    default = damper.replace(excitation=None)  # each method's own forcing: Gaussian nodes for Monte Carlo only
+    assert default_chunk_size(default, 10**5, "monte_carlo") == default_chunk_size(damper, 10**5, "monte_carlo")
+    assert default_chunk_size(default, 10**5, "dpim") <= small

@@ -63,10 +63,10 @@ def test_two_processes_give_the_results_of_one(tmp_path):
     assert all(p.returncode == 0 for p in procs), logs
     one = compute()
     for i in range(2):
-        got = np.load(tmp_path / f"{i}.npz")
-        assert int(got["process_count"]) == 2
-        for name, value in one.items():
-            np.testing.assert_array_equal(got[name], value, err_msg=f"process {i}: {name}")
+        with np.load(tmp_path / f"{i}.npz") as got:
+            assert int(got["process_count"]) == 2
+            for name, value in one.items():
+                np.testing.assert_array_equal(got[name], value, err_msg=f"process {i}: {name}")
 
 
 def test_the_bench_binds_each_process_to_its_own_share_of_the_cores(monkeypatch):

@@ -120,7 +120,9 @@ RUNS = {
     "seed": (lambda s: jdpim.monte_carlo(s, n_samples=8, seed=-1), r"seed must be an integer >= 0, got -1"),
     "chunk_size": (lambda s: jdpim.monte_carlo(s, n_samples=8, chunk_size=0), r"chunk_size must be an integer >= 1"),
     "chunk_size-int32": (  # 60000 paths x 40500 excitation samples > 2**31 (came back NaN on a GPU)
-        lambda s: jdpim.monte_carlo(s.replace(t_end=200.0), n_samples=60_000, chunk_size=60_000),
+        lambda s: jdpim.monte_carlo(
+            s.replace(t_end=200.0, excitation=jdpim.SpectralRepresentation()), n_samples=60_000, chunk_size=60_000
+        ),
         r"chunk_size=60000 exceeds 53024 for this scene",
     ),
     "points-mismatch": (

@@ -56,7 +56,7 @@ def _worker(argv) -> None:
     rows = {}
     monte_carlo = jdpim.MonteCarlo(n_samples=n_samples, seed=0, progress=False)
     for name, method, job_scene in (
-        ("monte_carlo", monte_carlo, scene),
+        ("monte_carlo", monte_carlo, scene.replace(excitation=jdpim.SpectralRepresentation())),
         ("monte_carlo_nodes", monte_carlo, scene.replace(excitation=jdpim.GaussianNodes())),
         ("dpim", jdpim.DPIM(n_points=n_points, progress=False), scene),
     ):

@@ -1,4 +1,4 @@
-"""Monte Carlo simulation: independent sample paths with Gaussian spectral coefficients."""
+"""Monte Carlo simulation: independent sample paths under Gaussian white-noise forcing."""
 
 from __future__ import annotations
 
@@ -13,8 +13,10 @@ from ._paths import SamplingMethod, check_run_settings, monte_carlo_inputs
 class MonteCarlo(SamplingMethod):
     """Monte Carlo simulation (settings; run it with ``jdpim.solve(scene, MonteCarlo(...))``).
 
-    Independent sample paths whose spectral coefficients are Gaussian, on the same excitation grid as DPIM;
-    densities are kernel estimates with weights ``1 / n_samples``, with sampling standard errors
+    Independent sample paths, each under its own draw of the forcing: by default (``Scene(excitation=None)``)
+    Gaussian values at the RK4 nodes drawn inside the steps (:class:`jdpim.GaussianNodes`), or with
+    ``excitation=jdpim.SpectralRepresentation()`` Gaussian spectral coefficients on DPIM's excitation grid.
+    Densities are kernel estimates with weights ``1 / n_samples``, with sampling standard errors
     (``Result.pdf_error``).
 
     Args:

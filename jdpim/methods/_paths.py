@@ -1,7 +1,8 @@
 """The two pipelines, DPIM and Monte Carlo, sharing one chunked, jitted simulation core.
 
-Data flow: scene -> input rows (DPIM points or MC keys) -> spectral coefficients -> FFT excitation ->
-RK4 trajectories (only the saved times kept) -> :class:`Result`. Paths are processed in chunks
+Data flow: scene -> input rows (DPIM points or MC keys) -> forcing (spectral coefficients and an FFT, or Gaussian
+node values drawn inside the steps, ``Scene.excitation_for``) -> RK4 trajectories (only the saved times kept) ->
+:class:`Result`. Paths are processed in chunks
 (``lax.map``) so memory stays bounded; every chunk is a pure function of its rows. Large runs are
 streamed in blocks of chunks from a host loop, and the path axis is sharded over the local devices.
 """
@@ -44,15 +45,15 @@ class NonFiniteWarning(RuntimeWarning):
     """Some paths produced non-finite states (blow-up); their mass is left out of every density."""
 
 
-def _largest_chunk(scene: Scene) -> int:
-    """The most paths one chunk may hold: XLA indexes arrays with 32-bit integers."""
-    return (2**31 - 1) // _values_per_path(scene)
+def _largest_chunk(scene: Scene, kind: str) -> int:
+    """The most paths one chunk of method ``kind`` may hold: XLA indexes arrays with 32-bit integers."""
+    return (2**31 - 1) // _values_per_path(scene, kind)
 
 
-def _values_per_path(scene: Scene) -> int:
-    """Values one path holds in a chunk: its spectral excitation over the FFT grid, or (noise drawn inside the
-    steps) its saved states."""
-    if isinstance(scene.excitation, GaussianNodes):
+def _values_per_path(scene: Scene, kind: str) -> int:
+    """Values one path of method ``kind`` holds in a chunk: its spectral excitation over the FFT grid, or (noise
+    drawn inside the steps) its saved states."""
+    if isinstance(scene.excitation_for(kind), GaussianNodes):
         return 2 * scene.model.dimension * (len(scene.save_at) + 1)
     return scene.n_sources * scene.spectral_grid().n_fft
 
@@ -84,8 +85,8 @@ def check_memory(scene: Scene, n_paths: int, name: str, input_bytes: int) -> Non
         )
 
 
-def default_chunk_size(scene: Scene, n_paths: int) -> int:
-    """Paths per chunk so that one chunk's excitation work stays within :func:`memory_budget`.
+def default_chunk_size(scene: Scene, n_paths: int, kind: str) -> int:
+    """Paths per chunk of method ``kind`` so that one chunk's excitation work stays within :func:`memory_budget`.
 
     On a CPU that is 512 MiB (about 800 paths of the reference scene), and at most 512 paths in float32
     or 256 in float64 (``CPU_CHUNK_BYTES``), above which XLA's CPU code takes longer per path. With
@@ -94,12 +95,12 @@ def default_chunk_size(scene: Scene, n_paths: int) -> int:
     memory, as far as 32-bit indexing allows: a GPU's time per step barely grows with the paths in a chunk, so
     large chunks are what make it fast (``docs/speed.md``).
     """
-    bytes_per_path = 4 * scene.float_dtype.itemsize * _values_per_path(scene)
+    bytes_per_path = 4 * scene.float_dtype.itemsize * _values_per_path(scene, kind)
     cpu = on_cpu()
     cap = CPU_CHUNK_BYTES // scene.float_dtype.itemsize if cpu else n_paths
-    if cpu and isinstance(scene.excitation, GaussianNodes):
+    if cpu and isinstance(scene.excitation_for(kind), GaussianNodes):
         cap = NODES_CHUNK
-    largest = max(1, min(n_paths, cap, memory_budget() // bytes_per_path, _largest_chunk(scene)))
+    largest = max(1, min(n_paths, cap, memory_budget() // bytes_per_path, _largest_chunk(scene, kind)))
     n_chunks = -(-n_paths // largest)
     return -(-n_paths // n_chunks)  # equal chunks: the least padding
 
@@ -128,10 +129,11 @@ def _path_inputs(scene: Scene, kind: str, row):
 def _simulate_chunk(scene: Scene, kind: str, rows, track=None):
     """States ``(n, S, 2 d)`` of one chunk of paths (and the values of ``track`` at the saved times: ``integrate``)."""
     dtype = scene.float_dtype
-    if isinstance(scene.excitation, GaussianNodes):  # drawn inside the steps from each path's noise key
+    forcing = scene.excitation_for(kind)
+    if isinstance(forcing, GaussianNodes):  # drawn inside the steps from each path's noise key
         k_noise, rand = jax.vmap(functools.partial(_monte_carlo_keys, scene))(rows)
         mixing = scene.noise.mixing().astype(dtype)
-        excitation = scene.excitation.node_source(k_noise, mixing, scene.dt, dtype)
+        excitation = forcing.node_source(k_noise, mixing, scene.dt, dtype)
     else:
         coeffs, rand = jax.vmap(functools.partial(_path_inputs, scene, kind))(rows)
         excitation = synthesize(coeffs, scene.spectral_grid()).astype(dtype)
@@ -400,11 +402,11 @@ def dpim_points(scene: Scene, n_points: int = 1000) -> PointSet:
     return select_points(scene.input_distributions(), n_points)
 
 
-def _chunk(scene: Scene, n: int, chunk_size: int | None) -> int:
+def _chunk(scene: Scene, n: int, chunk_size: int | None, kind: str) -> int:
     if chunk_size is None:
-        return default_chunk_size(scene, n)
+        return default_chunk_size(scene, n, kind)
     chunk = min(check_int("chunk_size", chunk_size, low=1), n)
-    largest = _largest_chunk(scene)
+    largest = _largest_chunk(scene, kind)
     if chunk > largest:  # larger chunks came back all NaN on a GPU
         raise ValueError(
             f"chunk_size={chunk_size} exceeds {largest} for this scene: one chunk's excitation would hold more "
@@ -415,10 +417,11 @@ def _chunk(scene: Scene, n: int, chunk_size: int | None) -> int:
 
 def dpim_inputs(scene: Scene, n_points: int = 1000, *, points: PointSet | None = None, chunk_size=None):
     """``(rows, weights, chunk_size)`` of a DPIM run: the points ``(N, d)``, their probabilities ``(N,)``."""
-    if isinstance(scene.excitation, GaussianNodes):
+    if isinstance(scene.excitation_for("dpim"), GaussianNodes):
         raise ValueError(
-            "DPIM needs the spectral representation (Scene(excitation=jdpim.SpectralRepresentation())): its "
-            "random functions of two variables per source; GaussianNodes is for Monte Carlo"
+            "DPIM needs the spectral representation (Scene(excitation=None), the default, or "
+            "jdpim.SpectralRepresentation(...)): its random functions of two variables per source; GaussianNodes "
+            "is for Monte Carlo"
         )
     if points is None:
         check_int("n_points", n_points, low=2)
@@ -430,7 +433,7 @@ def dpim_inputs(scene: Scene, n_points: int = 1000, *, points: PointSet | None =
         raise ValueError(f"points.distributions do not match the scene's input space {scene.input_distributions()}")
     dtype = scene.float_dtype
     rows, weights = jnp.asarray(points.theta, dtype), jnp.asarray(points.weights, dtype)
-    return rows, weights, _chunk(scene, points.n_points, chunk_size)
+    return rows, weights, _chunk(scene, points.n_points, chunk_size, "dpim")
 
 
 def monte_carlo_inputs(scene: Scene, n_samples: int = 10_000, *, seed: int = 0, chunk_size=None):
@@ -439,7 +442,7 @@ def monte_carlo_inputs(scene: Scene, n_samples: int = 10_000, *, seed: int = 0, 
     seed = check_int("seed", seed, low=0)
     check_memory(scene, n, "n_samples", 8)
     keys = jax.random.key_data(jax.random.split(jax.random.key(seed), n))
-    return keys, jnp.full((n,), 1.0 / n, scene.float_dtype), _chunk(scene, n, chunk_size)
+    return keys, jnp.full((n,), 1.0 / n, scene.float_dtype), _chunk(scene, n, chunk_size, "monte_carlo")
 
 
 class SamplingMethod(AbstractMethod):

@@ -45,8 +45,9 @@ class SubsetSimulation(AbstractMethod):
         width: half-width ``w`` of the uniform component proposal (> 0).
         max_levels: most levels (>= 1) before giving up on the highest level asked for.
 
-    The scene's forcing must be ``jdpim.GaussianNodes()`` (the input space is its node values) and it may
-    have no random parameters. Probabilities are given at the scene's last saved time.
+    The scene's forcing must be that of ``jdpim.GaussianNodes()`` (the input space is its node values; a
+    scene's default, ``excitation=None``, gives it) and it may have no random parameters. Probabilities are
+    given at the scene's last saved time.
     """
 
     n_per_level: int = static_field(default=1000)
@@ -76,10 +77,10 @@ class SubsetSimulation(AbstractMethod):
         raise ValueError("SubsetSimulation has no density derivatives; use jdpim.MonteCarlo or jdpim.DPIM")
 
     def first_passage(self, scene: Scene, query) -> FirstPassage:
-        if not isinstance(scene.excitation, GaussianNodes):
+        if not isinstance(scene.excitation_for("monte_carlo"), GaussianNodes):
             raise ValueError(
                 "SubsetSimulation samples the Gaussian forcing values at the RK4 nodes: use "
-                "Scene(..., excitation=jdpim.GaussianNodes())"
+                "Scene(..., excitation=jdpim.GaussianNodes()) or the default, excitation=None"
             )
         if scene.random:
             raise ValueError("SubsetSimulation needs a scene without random parameters")
