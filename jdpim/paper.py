@@ -28,6 +28,7 @@ import time
 import numpy as np
 
 from . import figures
+from ._excitation import SpectralRepresentation
 from ._models import VibroImpactOscillator
 from ._noise import WhiteNoise
 from ._scene import Scene
@@ -51,6 +52,7 @@ class Settings:
     save_at: tuple[float, ...] = (10.0, 50.0, 200.0)
     replicates: int = 4
     n_grid: int = 241
+    excitation: SpectralRepresentation | None = None  # the scenes' (None: each method's own forcing)
 
     def with_overrides(self, **changes) -> Settings:
         """A copy with the given fields replaced (``None`` values are ignored)."""
@@ -60,9 +62,10 @@ class Settings:
         """One line stating the settings (figure titles, CSV and JSON carry it)."""
         head = "QUICK settings" if self.name == "quick" else "settings"
         reps = f", {self.replicates} DPIM replicates" if self.replicates else ""
+        forcing = "" if self.excitation is None else ", MCS on the spectral forcing"
         return (
             f"{head}: DPIM {self.n_points} points, MCS {self.n_samples} samples, t_end = {self.t_end:g} s, "
-            f"dt = {self.dt:g} s{reps}"
+            f"dt = {self.dt:g} s{reps}{forcing}"
         )
 
 
@@ -73,7 +76,14 @@ QUICK = Settings(name="quick", n_samples=10_000)
 def scene(D: float, settings: Settings) -> Scene:
     """The paper's scene at noise intensity ``D``."""
     model = VibroImpactOscillator(alpha=ALPHA, gamma=GAMMA, r=R)
-    return Scene(model, noise=WhiteNoise(D=D), t_end=settings.t_end, dt=settings.dt, save_at=settings.save_at)
+    return Scene(
+        model,
+        noise=WhiteNoise(D=D),
+        t_end=settings.t_end,
+        dt=settings.dt,
+        save_at=settings.save_at,
+        excitation=settings.excitation,
+    )
 
 
 # The reference density: path integration's stationary density on its default grid (docs/path_integration.md:

@@ -52,6 +52,7 @@ def test_every_option_has_help_and_shows_its_default(command):
         (["run", "--save-at", "300"], "--save-at times must lie in [0, --t-end=200], got 300"),
         (["run", "--t-end", "10", "--dt", "0.03", "--save-at", "10"], "t_end=10.0 must be a whole number of steps"),
         (["paper", "--samples", "0"], "argument --samples: must be an integer >= 2, got 0"),
+        (["run", "--forcing", "fft"], "argument --forcing: invalid choice: 'fft'"),
         (["run", "missing.toml"], "missing.toml: no such file"),
     ],
 )
@@ -80,6 +81,18 @@ def test_the_example_scene_file_parses_as_documented():
     assert [(m.name, m.n_paths) for m in sf.methods] == [("dpim", 1000), ("monte_carlo", 10_000)]
 
 
+def test_scene_files_choose_monte_carlos_forcing(tmp_path):
+    """``[method] forcing``: ``"nodes"`` (the default) leaves the scene's excitation to each method; ``"spectral"``
+    gives both methods the spectral representation."""
+    path = tmp_path / "s.toml"
+    path.write_text(_scene_text())
+    assert load(path).scene.excitation is None and load(path).table["method"]["forcing"] == "nodes"
+    path.write_text(_scene_text(n_samples='64\nforcing = "spectral"'))
+    sf = load(path)
+    assert sf.scene.excitation == jdpim.SpectralRepresentation() and sf.table["method"]["forcing"] == "spectral"
+    assert sf.scene.excitation_for("monte_carlo") == sf.scene.excitation_for("dpim")
+
+
 @pytest.mark.parametrize("spelling", ['"none"', None])
 def test_an_absent_term_is_not_in_the_model(tmp_path, spelling):
     path = tmp_path / "s.toml"
@@ -102,6 +115,14 @@ def test_an_absent_term_is_not_in_the_model(tmp_path, spelling):
         ({"n_points": "1.5"}, "s.toml: [method] n_points: must be an integer, got a float 1.5"),
         ({"n_samples": "1"}, "s.toml: [method] n_samples: must be an integer >= 2, got 1"),
         ({"name": '"fem"'}, "s.toml: [method] name: must be one of ['dpim', 'monte_carlo'], got 'fem'"),
+        (
+            {"n_samples": '64\nforcing = "fft"'},
+            "s.toml: [method] forcing: must be one of ['nodes', 'spectral'], got 'fft'",
+        ),
+        (
+            {"name": '"dpim"', "n_samples": None, "n_points": '32\nforcing = "spectral"'},
+            "s.toml: [method] forcing: does not apply to method 'dpim'",
+        ),
         ({"save_at": "[1.0, 3.0]"}, "s.toml: [time] save_at: must lie in [0, 2], got 3"),
         ({"save_at": "[1.01, 2.0]"}, "s.toml: [time] save_at: save_at times [1.01] are not multiples of dt=0.02"),
         ({"dt": "0.03"}, "s.toml: [time] t_end: t_end=2.0 must be a whole number of steps dt=0.03"),
@@ -234,6 +255,11 @@ def test_paper_command_passes_its_settings(monkeypatch, tmp_path):
     assert (s.name, s.n_samples, s.n_points, s.noise_levels) == ("quick", 2000, 1000, (0.01, 0.03, 0.08))
     assert seen["pdf"] is True and seen["progress"] is False and seen["out"] == tmp_path
     assert s.label().startswith("QUICK settings: DPIM 1000 points, MCS 2000 samples")
+    assert s.excitation is None and "spectral" not in s.label()  # Monte Carlo's own forcing
+    assert cli.main(["paper", "--quick", "--forcing", "spectral", "--quiet", "--out", str(tmp_path)]) == 0
+    s = seen["settings"]
+    assert s.excitation == jdpim.SpectralRepresentation() and s.label().endswith(", MCS on the spectral forcing")
+    assert paper.scene(0.03, s).excitation == s.excitation
     assert paper.FULL.n_samples == 100_000 and paper.FULL.n_points == 1000  # the paper's sizes
 
 

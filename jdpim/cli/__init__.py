@@ -11,6 +11,7 @@ A bad value is rejected in one line with exit status 2; ``--traceback`` shows th
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import pathlib
 import sys
@@ -99,7 +100,20 @@ def _run_parser(sub) -> None:
         "--save-at", type=NON_NEGATIVE, nargs="+", default=[10.0, 50.0, 200.0], help="saved times in s (<= t_end)"
     )
     p.add_argument("--repeats", type=_count(1), default=3, help="timed DPIM repeats after a warm-up (MCS: one run)")
+    _forcing_option(p)
     _common(p)
+
+
+def _forcing_option(p) -> None:
+    from jdpim.cli._scenefile import FORCINGS
+
+    p.add_argument(
+        "--forcing",
+        choices=FORCINGS,
+        default=FORCINGS[0],
+        help="Monte Carlo's forcing: Gaussian values at the RK4 nodes, drawn inside the steps, or DPIM's spectral "
+        "representation with Gaussian coefficients",
+    )
 
 
 # options of `jdpim run` that set the main job's scene (refused with a scene file, which carries its own)
@@ -114,6 +128,7 @@ MAIN_JOB_OPTIONS = (
     "--dt",
     "--save-at",
     "--repeats",
+    "--forcing",
 )
 
 
@@ -132,6 +147,7 @@ def _paper_parser(sub) -> None:
     p.add_argument("--points", type=_count(2), default=None, help="DPIM points (default: 1000)")
     p.add_argument("--samples", type=_count(2), default=None, help="MCS samples (default: 1e5; 1e4 with --quick)")
     p.add_argument("--replicates", type=_count(0), default=None, help="randomised DPIM replicates for error bands")
+    _forcing_option(p)
     _common(p)
 
 
@@ -139,13 +155,19 @@ def run(args) -> dict:
     """The main job. Returns the summary it also writes to ``<out>/summary.json``."""
     import jdpim
     from jdpim.cli import report
+    from jdpim.cli._scenefile import excitation_of
 
     if max(args.save_at) > args.t_end:
         raise UsageError(f"--save-at times must lie in [0, --t-end={args.t_end:g}], got {max(args.save_at):g}")
     log = report.logger(args.quiet)
     model = jdpim.VibroImpactOscillator(alpha=args.alpha, gamma=args.gamma, r=args.r)
     scene = jdpim.Scene(
-        model, noise=jdpim.WhiteNoise(D=args.D), t_end=args.t_end, dt=args.dt, save_at=tuple(args.save_at)
+        model,
+        noise=jdpim.WhiteNoise(D=args.D),
+        t_end=args.t_end,
+        dt=args.dt,
+        save_at=tuple(args.save_at),
+        excitation=excitation_of(args.forcing),
     )
     args.out.mkdir(parents=True, exist_ok=True)
     log(
@@ -154,7 +176,7 @@ def run(args) -> dict:
     )
     log(f"DPIM: {args.points} points, compile + warm-up + {args.repeats} timed runs ...")
     dp, t_dp = report.timed_protocol(scene, jdpim.DPIM(n_points=args.points), repeats=args.repeats)
-    log(f"MCS: {args.samples} samples, compile + one timed run ...")
+    log(f"MCS: {args.samples} samples ({args.forcing} forcing), compile + one timed run ...")
     mc, t_mc = report.timed_protocol(scene, jdpim.MonteCarlo(n_samples=args.samples), repeats=1, warmup=False)
     rows = [t_dp.row(), t_mc.row()]
     table = report.markdown([{**r, "steps": scene.n_steps} for r in rows], TIMING_COLUMNS)
@@ -221,10 +243,12 @@ def _run_scene(args) -> dict:
 
 def _paper(args) -> dict:
     from jdpim import paper
+    from jdpim.cli._scenefile import excitation_of
     from jdpim.cli.report import logger
 
     settings = paper.QUICK if args.quick else paper.FULL
     settings = settings.with_overrides(n_points=args.points, n_samples=args.samples, replicates=args.replicates)
+    settings = dataclasses.replace(settings, excitation=excitation_of(args.forcing))
     return paper.reproduce(settings, args.out, pdf=args.pdf, log=logger(args.quiet), progress=not args.quiet)
 
 

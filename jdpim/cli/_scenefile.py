@@ -17,6 +17,9 @@ r"""Scene files: a computation described in TOML, checked key by key before anyt
     name = "dpim"           # "dpim", "monte_carlo", or a list of both
     n_points = 1000
 
+``[method] forcing`` is Monte Carlo's forcing: ``"nodes"`` (the default, Gaussian values at the RK4 nodes drawn
+inside the steps) or ``"spectral"`` (DPIM's spectral representation, with Gaussian coefficients).
+
 Optional tables: ``[initial]`` (``x0``, ``v0``), ``[output]`` (``densities``: which of ``"x"``, ``"v"``,
 ``"joint"`` are stored, ``states``: whether the raw states are stored too, ``figures``, ``n_grid``),
 ``[reliability]`` (``quantity``: a coordinate, e.g. ``"x"``, or its magnitude ``"|x|"``; ``levels``: a number
@@ -74,8 +77,20 @@ EXAMPLES = ("impact_damper", "pounding_frame", "gear_pair")  # jdpim's example s
 KINDS = ("vibro_impact", "mdof", *EXAMPLES)
 FILTERS = ("kanai_tajimi", "first_order", "harmonic")  # [[model.filters]] kind -> jdpim.kanai_tajimi, ...
 METHODS = ("dpim", "monte_carlo")
+FORCINGS = ("nodes", "spectral")  # Monte Carlo's forcing: Gaussian values at the RK4 nodes, or DPIM's spectral one
 DENSITIES = ("x", "v", "joint")  # [output] densities of one degree of freedom
 NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]*")  # a coordinate's name: it names arrays and files
+
+
+def excitation_of(forcing: str):
+    """The scene's ``excitation`` for Monte Carlo's ``forcing`` (one of ``FORCINGS``): ``None`` for ``"nodes"``
+    (each method's own: Gaussian nodes for Monte Carlo, the spectral representation for DPIM), or
+    ``jdpim.SpectralRepresentation()`` for both methods."""
+    import jdpim
+
+    if forcing not in FORCINGS:
+        raise ValueError(f"forcing must be one of {FORCINGS}, got {forcing!r}")
+    return None if forcing == "nodes" else jdpim.SpectralRepresentation()
 
 
 class SceneFileError(ValueError):
@@ -190,7 +205,7 @@ _SCHEMA = {
     "noise": {"D"},
     "time": {"t_end", "dt", "save_at"},
     "initial": {"x0", "v0"},
-    "method": {"name", "n_points", "n_samples", "seed"},
+    "method": {"name", "n_points", "n_samples", "seed", "forcing"},
     "output": {"densities", "joint", "derived", "states", "figures", "n_grid"},
     "reliability": {"quantity", "levels"},
 }
@@ -602,7 +617,10 @@ def load(path) -> SceneFile:
     me = tables["method"]
     names = me.choices("name", None, METHODS) if "name" in me.table else me.fail("name", "is required")
     seed = me.integer("seed", 0, low=0)
-    for name, key in (("dpim", "n_samples"), ("monte_carlo", "n_points")):
+    forcing = me.table.get("forcing", FORCINGS[0])
+    if not isinstance(forcing, str) or forcing not in FORCINGS:
+        me.fail("forcing", f"must be one of {list(FORCINGS)}, got {forcing!r}")
+    for name, key in (("dpim", "n_samples"), ("monte_carlo", "n_points"), ("dpim", "forcing")):
         if key in me.table and name in names and len(names) == 1:
             me.fail(key, f"does not apply to method {name!r}")
     methods = tuple(
@@ -632,7 +650,10 @@ def load(path) -> SceneFile:
     )
     try:
         noise = jdpim.WhiteNoise(D=D)
-        scene = jdpim.Scene(model, noise=noise, x0=x0, v0=v0, t_end=t_end, dt=dt, save_at=save_at)
+        excitation = excitation_of(forcing)
+        scene = jdpim.Scene(
+            model, noise=noise, x0=x0, v0=v0, t_end=t_end, dt=dt, save_at=save_at, excitation=excitation
+        )
     except (ValueError, TypeError) as err:
         raise _library_error(path, err) from None
     reliability = _reliability(tables["reliability"], scene, outputs.derived) if "reliability" in raw else None
@@ -645,6 +666,7 @@ def load(path) -> SceneFile:
             "name": list(names),
             **{("n_points" if x.name == "dpim" else "n_samples"): x.n_paths for x in methods},
             "seed": seed,
+            **({"forcing": forcing} if "monte_carlo" in names else {}),
         },
         "output": {
             "densities": list(densities),
