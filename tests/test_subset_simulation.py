@@ -9,7 +9,7 @@ W, ZETA, S = 7.85, 0.02, 1.0  # rad/s, damping ratio, two-sided spectral density
 D = np.pi * S  # E[xi(t) xi(t + s)] = 2 pi S delta(s) = 2 D delta(s)
 SIGMA = np.sqrt(D / (2 * ZETA * W**3))  # the stationary standard deviation of x
 MODEL = jdpim.VibroImpactOscillator(alpha=2 * ZETA * W, gamma=None, barrier=None, omega=W)
-SCENE = jdpim.Scene(MODEL, noise=jdpim.WhiteNoise(D=D), t_end=30.0, dt=0.02, excitation=jdpim.GaussianNodes())
+SCENE = jdpim.Scene(MODEL, noise=jdpim.WhiteNoise(D=D), t_end=30.0, dt=0.02)  # Monte Carlo's forcing, GaussianNodes
 
 
 def test_subset_simulation_agrees_with_monte_carlo_and_reaches_small_probabilities():
