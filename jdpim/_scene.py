@@ -220,7 +220,7 @@ class Scene:
         """The excitation that ``method`` (``"dpim"`` or ``"monte_carlo"``) integrates with: ``excitation``, or
         where that is ``None`` the method's own, ``SpectralRepresentation()`` for DPIM and ``GaussianNodes()``
         for Monte Carlo."""
-        if method not in DEFAULT_EXCITATION:
+        if not isinstance(method, str) or method not in DEFAULT_EXCITATION:
             raise ValueError(f"method must be one of {tuple(DEFAULT_EXCITATION)}, got {method!r}")
         return DEFAULT_EXCITATION[method]() if self.excitation is None else self.excitation
 

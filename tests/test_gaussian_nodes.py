@@ -56,8 +56,9 @@ def test_dpim_refuses_and_bad_settings_fail_in_one_line():
         jdpim.GaussianNodes(block=0)
     with pytest.raises(TypeError, match="excitation must be a jdpim.SpectralRepresentation or jdpim.GaussianNodes or"):
         jdpim.Scene(jdpim.VibroImpactOscillator(), excitation="nodes")
-    with pytest.raises(ValueError, match="method must be one of"):
-        scene.excitation_for("path_integration")
+    for method in ("path_integration", ["dpim"]):
+        with pytest.raises(ValueError, match="method must be one of"):
+            scene.excitation_for(method)
 
 
 def test_each_method_takes_its_own_forcing_where_the_scene_leaves_it():
