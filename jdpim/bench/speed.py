@@ -38,7 +38,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._excitation import GaussianNodes, synthesize
+from .._excitation import GaussianNodes, SpectralRepresentation, synthesize
 from .._integrate import ImpactRule
 from ..methods._paths import _path_inputs, _simulate_chunk, dpim_inputs, monte_carlo_inputs
 from .accuracy import ALPHA, GAMMA, D, R, grids, paper_scene
@@ -327,7 +327,7 @@ def run_speed(out: pathlib.Path, *, quick: bool = False, log=print) -> list[str]
         configs = [("dpim", 1000, "locate", "spectral")] + [("monte_carlo", m, "locate", "spectral") for m in mcs_sizes]
         configs += [("monte_carlo", 10_000, "mirror", "spectral"), ("monte_carlo", 10_000, "locate", "nodes")]
         for method, n, impacts, forcing in configs:
-            excitation = GaussianNodes() if forcing == "nodes" else None
+            excitation = GaussianNodes() if forcing == "nodes" else SpectralRepresentation()
             scene = paper_scene(T_END, DT, excitation, dtype=dtype, impacts=ImpactRule(method=impacts))
             for devices in device_sets:
                 n_dev = 1 if devices is None else len(devices)
