@@ -47,7 +47,7 @@ def use_cpu_cores(n: int | None = None) -> int:
     Raises:
         RuntimeError: JAX has already run a computation with another number of CPU devices.
 
-    Example:
+    Examples:
         >>> import jdpim
         >>> n = jdpim.use_cpu_cores()  # doctest: +SKIP
     """

@@ -40,7 +40,7 @@ class DPIM(SamplingMethod):
     ``solve`` returns a :class:`jdpim.Result` with ``weights = P_q``; its ``states`` are sharded over
     ``devices`` (over several CPU devices, gathered on the first one).
 
-    Example:
+    Examples:
         >>> import jdpim
         >>> scene = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=2.0, dt=0.01)
         >>> jdpim.solve(scene, jdpim.DPIM(n_points=64)).states.shape
@@ -84,7 +84,7 @@ def dpim(
 ) -> Result:
     """``jdpim.solve(scene, jdpim.DPIM(n_points, ...))``: response PDFs by DPIM (see :class:`DPIM`).
 
-    Example:
+    Examples:
         >>> import jdpim
         >>> scene = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=2.0, dt=0.01)
         >>> jdpim.dpim(scene, n_points=64).states.shape
