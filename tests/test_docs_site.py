@@ -1,0 +1,54 @@
+"""The documentation site builds in strict mode (broken links, missing references and docstring errors fail it),
+and the package's version is the one pyproject.toml declares."""
+
+import os
+import pathlib
+import subprocess
+import sys
+
+import jdpim
+
+ROOT = pathlib.Path(__file__).parents[1]
+
+
+def _nav_pages(nav) -> list[str]:
+    """The files a mkdocs ``nav`` names, in order."""
+    if isinstance(nav, str):
+        return [nav]
+    if isinstance(nav, dict):
+        return [p for v in nav.values() for p in _nav_pages(v)]
+    return [p for item in nav for p in _nav_pages(item)]
+
+
+def test_site_builds_strict_without_warnings(tmp_path):
+    import yaml
+
+    env = dict(os.environ, NO_MKDOCS_2_WARNING="1")
+    proc = subprocess.run(
+        [sys.executable, "-m", "mkdocs", "build", "--strict", "--site-dir", str(tmp_path / "site")],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    log = proc.stdout + proc.stderr
+    assert proc.returncode == 0, log
+    assert "WARNING -" not in log, log
+    with open(ROOT / "mkdocs.yml") as f:
+        nav = _nav_pages(yaml.safe_load(f)["nav"])
+    for page in nav:  # every page of the nav is built
+        built = tmp_path / "site" / ("index.html" if page == "index.md" else f"{page.rsplit('.', 1)[0]}/index.html")
+        assert built.is_file(), page
+    api = (tmp_path / "site" / "api" / "index.html").read_text()
+    for name in ("jdpim.Scene", "jdpim.solve", "jdpim.Result", "jdpim.first_passage", "jdpim.sensitivity"):
+        assert f'id="{name}"' in api, name  # the reference is generated from the docstrings
+
+
+def test_version_is_pyproject_version():
+    if sys.version_info >= (3, 11):
+        import tomllib
+    else:
+        import tomli as tomllib
+    declared = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["version"]
+    assert jdpim.__version__ == declared
