@@ -1,6 +1,7 @@
 """The documentation site builds in strict mode (broken links, missing references and docstring errors fail it),
 and the package's version is the one pyproject.toml declares."""
 
+import json
 import os
 import pathlib
 import subprocess
@@ -43,6 +44,17 @@ def test_site_builds_strict_without_warnings(tmp_path):
     api = (tmp_path / "site" / "api" / "index.html").read_text()
     for name in ("jdpim.Scene", "jdpim.solve", "jdpim.Result", "jdpim.first_passage", "jdpim.sensitivity"):
         assert f'id="{name}"' in api, name  # the reference is generated from the docstrings
+
+
+def test_every_committed_record_carries_date_machine_versions_load_and_protocol():
+    records = sorted((ROOT / "docs" / "bench").glob("*.json"))
+    assert records
+    for path in records:
+        rec = json.loads(path.read_text())["record"]
+        assert set(rec) >= {"date", "machine", "versions", "load_average", "protocol"}, path.name
+        assert set(rec["machine"]) >= {"cpu", "cores"} and set(rec["versions"]) >= {"python", "jax", "jdpim"}, path.name
+        md = path.with_suffix(".md")
+        assert not md.exists() or f"Measured {rec['date']}" in md.read_text(), md.name
 
 
 def test_version_is_pyproject_version():

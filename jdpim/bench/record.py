@@ -46,14 +46,17 @@ def record(protocol: str) -> dict:
 
 
 def record_lines(rec: dict) -> list[str]:
-    """The record as the Markdown lines that head every benchmark's ``.md``."""
+    """The record as the Markdown lines that head every benchmark's ``.md`` (a ``note`` included where present)."""
     m, v = rec["machine"], rec["versions"]
-    devices = f"{len(m['devices'])} x {m['devices'][0]}" if m["devices"] else "no devices"
+    devices = m["devices"]
+    if isinstance(devices, list):
+        devices = f"{len(devices)} x {devices[0]}" if devices else "no devices"
+    versions = ", ".join(f"{k} {v[k]}" for k in ("python", "jax", "numpy", "jdpim"))
     return [
-        f"Measured {rec['date']} on {m['cpu']} ({m['cores']} usable cores of {m['cpu_count']}; {m['backend']}, "
-        f"{devices}); python {v['python']}, jax {v['jax']}, numpy {v['numpy']}, jdpim {v['jdpim']}; load average "
-        f"(1, 5, 15 min) at the end {rec['load_average']}.",
+        f"Measured {rec['date']}; CPU: {m['cpu']}, {m['cores']} usable cores of {m['cpu_count']}; {m['backend']}, "
+        f"devices: {devices}; {versions}; load average (1, 5, 15 min) at the end: {rec['load_average']}.",
         "",
-        f"Protocol: {rec['protocol']}",
+        f"Protocol: {rec['protocol']}.",
         "",
+        *([f"Note: {rec['note']}.", ""] if "note" in rec else []),
     ]
