@@ -57,10 +57,15 @@ def test_every_committed_record_carries_date_machine_versions_load_and_protocol(
         assert not md.exists() or f"Measured {rec['date']}" in md.read_text(), md.name
 
 
-def test_version_is_pyproject_version():
+def test_version_is_pyproject_version_in_the_package_and_the_citation():
     if sys.version_info >= (3, 11):
         import tomllib
     else:
         import tomli as tomllib
+    import yaml
+
     declared = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["version"]
     assert jdpim.__version__ == declared
+    citation = yaml.safe_load((ROOT / "CITATION.cff").read_text())
+    assert str(citation["version"]) == declared
+    assert [r["year"] for r in citation["references"]] == [2019, 2016, 2016]  # DPIM, GF-discrepancy, random functions
