@@ -23,9 +23,8 @@ class DPIM(SamplingMethod):
     trajectories; densities are ``p(y, t) = sum_q P_q N(y; y_q(t), sigma^2)`` (``Result.pdf``).
 
     Defaults come from the accuracy study (``docs/accuracy.md``): the scene's cutoff ``2 / dt``, the
-    Box-Muller ("rayleigh") random functions and the bandwidth constant ``c = 1.25``. With them, N = 1000
-    gave a mean L1 error of about 0.05 on the exact r = 1 case, as Monte Carlo with 1000 samples did;
-    N = 16000 gave 0.014-0.017, which Monte Carlo needed about 30000 samples for.
+    Box-Muller ("rayleigh") random functions and the bandwidth constant ``c = 1.25``. With them, N points
+    are worth about N Monte Carlo samples (the accuracy bench's record, ``docs/bench/accuracy.json``).
 
     Args:
         n_points: number of representative points (>= 2), if ``points`` is not given.
