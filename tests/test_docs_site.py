@@ -69,3 +69,15 @@ def test_version_is_pyproject_version_in_the_package_and_the_citation():
     citation = yaml.safe_load((ROOT / "CITATION.cff").read_text())
     assert str(citation["version"]) == declared
     assert [r["year"] for r in citation["references"]] == [2019, 2016, 2016]  # DPIM, GF-discrepancy, random functions
+
+
+def test_readme_command_entry_point():
+    # `python3 -m jdpim paper --quick`: the module runs the command line as a program, and only then
+    proc = subprocess.run(
+        [sys.executable, "-m", "jdpim", "paper", "-h"], capture_output=True, text=True, timeout=120, cwd=ROOT
+    )
+    assert proc.returncode == 0 and "--quick" in proc.stdout, proc.stderr
+    proc = subprocess.run(
+        [sys.executable, "-c", "import jdpim.__main__"], capture_output=True, text=True, timeout=120, cwd=ROOT
+    )
+    assert proc.returncode == 0 and not proc.stdout, proc.stdout + proc.stderr  # importing it runs nothing
