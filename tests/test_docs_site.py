@@ -1,9 +1,10 @@
-"""The documentation site builds in strict mode (broken links, missing references and docstring errors fail it),
-and the package's version is the one pyproject.toml declares."""
+"""The documentation site builds in strict mode (broken links, missing references and docstring errors fail it);
+the benchmark records carry their metadata and the README quotes them; the version is pyproject's."""
 
 import json
 import os
 import pathlib
+import re
 import subprocess
 import sys
 
@@ -81,3 +82,36 @@ def test_readme_command_entry_point():
         [sys.executable, "-c", "import jdpim.__main__"], capture_output=True, text=True, timeout=120, cwd=ROOT
     )
     assert proc.returncode == 0 and not proc.stdout, proc.stdout + proc.stderr  # importing it runs nothing
+
+
+def _record_values() -> list[float]:
+    """Every number in the committed records (JSON values, and the numbers of the accuracy CSV)."""
+    values = []
+
+    def walk(obj):
+        if isinstance(obj, dict | list):
+            for v in obj.values() if isinstance(obj, dict) else obj:
+                walk(v)
+        elif isinstance(obj, int | float) and not isinstance(obj, bool):
+            values.append(float(obj))
+
+    for path in (ROOT / "docs" / "bench").glob("*.json"):
+        walk(json.loads(path.read_text()))
+    for line in (ROOT / "docs" / "bench" / "accuracy.csv").read_text().splitlines()[1:]:
+        values += [float(x) for x in line.split(",")[2:]]
+    return values
+
+
+def test_readme_headline_numbers_are_the_records():
+    text = (ROOT / "README.md").read_text()
+    section = text[text.index("## Headline results") : text.index("## Documentation")]
+    values = _record_values()
+    quoted = re.findall(r"(?<![\w.\-])\d+\.\d+(?:e-?\d+)?", section)
+    assert len(quoted) >= 8
+    for token in quoted:  # each decimal number is a record's value at the precision quoted
+        mantissa, _, exponent = token.partition("e")
+        digits = len(mantissa.split(".")[1])
+        if exponent:
+            assert any(f"{v:.{digits}e}" == f"{float(token):.{digits}e}" for v in values), token
+        else:
+            assert any(round(v, digits) == float(token) for v in values), token
