@@ -38,16 +38,13 @@ def use_cpu_cores(n: int | None = None) -> int:
     (``--xla_force_host_platform_device_count``) or ``JAX_NUM_CPU_DEVICES`` is kept when ``n`` is
     ``None``. States do not depend on the number of devices beyond rounding (``docs/speed.md``).
 
-    Measured on a 2-core CPU (reference scene, float32, warm): DPIM with 1000 points 0.61 s on one device,
-    0.43 s on two; Monte Carlo with 1e4 samples 6.2 s and 4.2 s (``docs/bench/speed.md``).
-
     Args:
         n: number of CPU devices (>= 1), or ``None`` for :func:`usable_cores`.
 
     Raises:
         RuntimeError: JAX has already run a computation with another number of CPU devices.
 
-    Example:
+    Examples:
         >>> import jdpim
         >>> n = jdpim.use_cpu_cores()  # doctest: +SKIP
     """

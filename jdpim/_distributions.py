@@ -17,7 +17,7 @@ from ._pytree import check_real
 class Uniform:
     """Uniform distribution on ``[low, high)``.
 
-    Example:
+    Examples:
         >>> import jdpim
         >>> jdpim.Uniform(-1.0, 1.0).ppf(0.75)
         0.5
@@ -51,7 +51,7 @@ class Uniform:
 class Normal:
     """Normal distribution with ``mean`` and standard deviation ``std`` (> 0).
 
-    Example:
+    Examples:
         >>> import jdpim
         >>> float(jdpim.Normal(1.0, 2.0).ppf(0.5))
         1.0

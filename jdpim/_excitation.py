@@ -62,7 +62,7 @@ class SpectralRepresentation:
             coefficients; measured kurtosis 2.3-2.5 and an L1 error that does not decrease with N
             (0.11-0.15) for the free oscillator at t = 100-200 s (README).
 
-    Example:
+    Examples:
         >>> import jdpim
         >>> spec = jdpim.SpectralRepresentation(cutoff=4 * 3.14159)
         >>> spec.grid(t_end=100.0, dt=0.01).n_terms
@@ -134,7 +134,7 @@ class GaussianNodes:
     the same values whatever the chunks and devices. Not band-limited: the forcing is white up to the step's
     resolution. DPIM needs the spectral representation (its two elementary variables per source).
 
-    Example:
+    Examples:
         >>> import jdpim
         >>> scene = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=1.0, dt=0.01, excitation=jdpim.GaussianNodes())
         >>> jdpim.solve(scene, jdpim.MonteCarlo(n_samples=8, seed=0)).states.shape

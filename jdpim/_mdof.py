@@ -29,7 +29,7 @@ class Barrier:
         position: the offset ``b`` (units of ``q``; traced).
         r: the coefficient of restitution in [0, 1] (traced).
 
-    Example:
+    Examples:
         >>> import jdpim
         >>> jdpim.Barrier(normal=(-1.0, 1.0), position=-0.1, r=0.6).normal
         (-1.0, 1.0)
@@ -85,7 +85,7 @@ class MDOFOscillator(AbstractSystem):
 
     The impact law on constraint ``j`` is ``v+ = v- - (1 + r_j) (n_j . v-) M^-1 n_j / (n_j . M^-1 n_j)``.
 
-    Example:
+    Examples:
         >>> import jdpim
         >>> two = jdpim.MDOFOscillator(mass=[[1.0, 0.0], [0.0, 0.5]], gains=[[1.0], [0.0]],
         ...                            damping=[[0.1, 0.0], [0.0, 0.05]], stiffness=[[2.0, -1.0], [-1.0, 1.0]],

@@ -109,7 +109,7 @@ class VibroImpactOscillator(AbstractOscillator):
         barrier: barrier position; the system lives on ``x >= barrier``. ``None`` means no barrier.
         omega: natural frequency (> 0), rad/s.
 
-    Example:
+    Examples:
         >>> import jdpim, jax.numpy as jnp
         >>> model = jdpim.VibroImpactOscillator(alpha=0.03, gamma=0.03, r=0.98)
         >>> float(model.acceleration(1.0, 0.0, jnp.zeros(1)))
@@ -166,7 +166,7 @@ class Oscillator(AbstractOscillator):
     structure (changing them recompiles). With state-dependent gains the smooth spectral excitation
     gives the Stratonovich interpretation (Wong-Zakai).
 
-    Example:
+    Examples:
         >>> import jdpim, jax.numpy as jnp
         >>> duffing = jdpim.Oscillator(params={"k3": 0.1}, g=lambda x, p: x + p["k3"] * x**3,
         ...                            f=lambda x, v, p: 0.05 * v, r=0.9)

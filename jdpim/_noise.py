@@ -19,7 +19,7 @@ class WhiteNoise:
         D: intensity, a scalar >= 0 (one source) or a symmetric positive-definite ``(m, m)`` matrix
             (``m`` correlated sources). The two-sided power spectral density is ``S0 = D / pi``.
 
-    Example:
+    Examples:
         >>> import jdpim
         >>> jdpim.WhiteNoise(D=0.03).n_sources
         1

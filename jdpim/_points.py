@@ -84,7 +84,7 @@ def select_points(
     Returns:
         A :class:`PointSet` (NumPy float64 arrays). Results are cached.
 
-    Example:
+    Examples:
         >>> import jdpim
         >>> ps = jdpim.select_points((jdpim.Uniform(), jdpim.Uniform()), 64)
         >>> ps.theta.shape, round(float(ps.weights.sum()), 12)

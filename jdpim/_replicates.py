@@ -39,7 +39,7 @@ def randomised_points(distributions: tuple, n_points: int, seed: int, *, n_refer
 
     Results are cached.
 
-    Example:
+    Examples:
         >>> import jdpim
         >>> ps = jdpim.randomised_points((jdpim.Uniform(), jdpim.Uniform()), 32, seed=1)
         >>> ps.theta.shape

@@ -41,7 +41,8 @@ class Scene:
         dt: RK4 time step in s (0 < dt < t_end).
         save_at: times in s at which the state is kept (strictly increasing, in [0, t_end], on the
             time grid). Only these are stored. Default: ``(t_end,)``.
-        x0, v0: initial displacement and velocity (traced); ``x0=None`` starts at the barrier (or 0).
+        x0: initial displacement (traced); ``None`` starts at the barrier (or 0).
+        v0: initial velocity (traced).
         random: random system parameters, ``{name: Normal(...) | Uniform(...)}``, where ``name`` is a
             model field or ``"x0"``/``"v0"``. They become extra DPIM input dimensions.
         excitation: how the white noise is generated: ``jdpim.SpectralRepresentation()`` (DPIM needs it; Monte
@@ -53,7 +54,7 @@ class Scene:
             ``None`` (default) traces none: blow-up is then counted and warned about (``NonFiniteWarning``).
         dtype: ``"float32"`` or ``"float64"`` (needs ``jax_enable_x64``), or ``None`` for JAX's default.
 
-    Example:
+    Examples:
         >>> import jdpim
         >>> scene = jdpim.Scene(jdpim.VibroImpactOscillator(), noise=jdpim.WhiteNoise(D=0.03),
         ...                     t_end=10.0, dt=0.01, save_at=(5.0, 10.0))

@@ -75,7 +75,7 @@ def refine_points(
     Returns:
         A :class:`PointSet` after the final Voronoi probabilities and rearrangement (NumPy arrays).
 
-    Example:
+    Examples:
         >>> import jdpim
         >>> base = jdpim.select_points((jdpim.Uniform(), jdpim.Uniform()), 32, n_reference=2**15)
         >>> better = jdpim.refine_points(base, steps=50)
@@ -127,7 +127,8 @@ def loo_log_likelihood(samples, weights, sigma, barrier=None):
     r"""Weighted leave-one-out log-likelihood ``sum_i P_i log(sum_{j != i} P_j K(y_i, y_j) / (1 - P_i))``.
 
     Args:
-        samples, weights: shape ``(N,)`` (non-finite samples must be removed first).
+        samples: shape ``(N,)`` (non-finite samples must be removed first).
+        weights: shape ``(N,)``.
         sigma: kernel standard deviation (> 0).
         barrier: reflect the kernel at this position, or ``None``.
     """
@@ -154,16 +155,19 @@ def tune_bandwidth(
     With ``reference`` (a PDF on ``grid``): minimise ``int (p_sigma - reference)^2`` (trapezoidal).
 
     Args:
-        samples, weights: shape ``(N,)``, e.g. ``res.samples("x", t)`` and ``res.weights``.
+        samples: shape ``(N,)``, e.g. ``res.samples("x", t)``.
+        weights: shape ``(N,)``, e.g. ``res.weights``.
         barrier: reflect the kernel at this position (displacements), or ``None``.
-        grid, reference: a reference PDF tabulated on ``grid`` (both ``(G,)``), or ``None``.
+        grid: the nodes of ``reference`` (``(G,)``), or ``None``.
+        reference: a reference PDF tabulated on ``grid`` (``(G,)``), or ``None``.
         init: starting sigma (default: the ``"chen"`` rule).
-        steps, learning_rate: optimiser settings.
+        steps: optimiser steps.
+        learning_rate: the optimiser's learning rate.
 
     Returns:
         scalar sigma.
 
-    Example:
+    Examples:
         >>> import jdpim, jax.numpy as jnp
         >>> y = jnp.linspace(-2.0, 2.0, 64)
         >>> w = jnp.full((64,), 1 / 64)

@@ -101,7 +101,7 @@ def kanai_tajimi(model: MDOFOscillator, omega_g: float = 15.6, zeta_g: float = 0
         zeta_g: the ground's damping ratio, > 0.
         influence: ``iota``, ``(n,)``: how each coordinate feels the ground (``None``: ones).
 
-    Example:
+    Examples:
         >>> import jdpim
         >>> jdpim.kanai_tajimi(jdpim.pounding_frame(n_storeys=2)).coordinates
         ('x1', 'x2', 'xf', 'v1', 'v2', 'vf')
@@ -132,7 +132,7 @@ def first_order_filter(model: MDOFOscillator, a: float = 1.0) -> MDOFOscillator:
         model: the structure, ``n`` coordinates and ``m`` noise sources (gains ``B``, ``(n, m)``).
         a: the filter's rate, 1/s, > 0 (its correlation time is ``1 / a``).
 
-    Example:
+    Examples:
         >>> import jdpim
         >>> jdpim.first_order_filter(jdpim.impact_damper(), a=2.0).coordinates
         ('x1', 'x2', 'xf', 'v1', 'v2', 'vf')
@@ -163,7 +163,7 @@ def harmonic(model: MDOFOscillator, amplitude: float, frequency: float, directio
         frequency: ``Omega``, rad/s, > 0.
         direction: ``b``, ``(n,)`` (``None``: the model's first noise source's gains, ``B[:, 0]``).
 
-    Example:
+    Examples:
         >>> import jdpim
         >>> jdpim.harmonic(jdpim.impact_damper(), amplitude=0.1, frequency=0.9).start
         (0.0, 0.0, 1.0)

@@ -45,7 +45,7 @@ def impact_damper(
         clearance: ``c``, the half-width of the clearance (units of ``x``), > 0.
         r: the coefficient of restitution of both ends, in [0, 1].
 
-    Example:
+    Examples:
         >>> import jdpim
         >>> jdpim.impact_damper(clearance=0.2).coordinates
         ('x1', 'x2', 'v1', 'v2')
@@ -92,7 +92,7 @@ def pounding_frame(
         r: the coefficient of restitution, in [0, 1].
         storey: the pounding storey, 1 .. n (``None``: the top, ``n``).
 
-    Example:
+    Examples:
         >>> import jdpim
         >>> jdpim.pounding_frame(n_storeys=2).constraints[0].normal
         (0.0, -1.0)
@@ -150,7 +150,7 @@ def gear_pair(
         backlash: ``b`` > 0 (units of ``y``).
         r: the coefficient of restitution, in [0, 1].
 
-    Example:
+    Examples:
         >>> import jdpim
         >>> [c.position for c in jdpim.gear_pair(backlash=0.2).constraints]
         [-0.2, -0.2]

@@ -24,6 +24,7 @@ from .._excitation import SpectralRepresentation
 from ..methods._dpim import dpim
 from ..methods._monte_carlo import monte_carlo
 from .accuracy import ALPHA, D, elastic_scene, exact_references, pdf_error
+from .record import record
 
 
 def _row(knob, value, method, n, res, scene) -> dict:
@@ -98,7 +99,8 @@ def run_budget(out: pathlib.Path, *, quick: bool = False, log=print) -> list[str
             log(f"  bandwidth rule = {rule:>9s}  {method:11s} n={n:>6d}  L1={np.mean(errs):.4f}")
     rows += _float64_rows(t_end, n_dpim // 2, n_mc // 4, log)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "budget.json").write_text(json.dumps(rows, indent=2))
+    rec = record("no timings: L1 errors and second moments against the exact solution, one run per row")
+    (out / "budget.json").write_text(json.dumps({"record": rec, "rows": rows}, indent=2))
     return ["budget.json"]
 
 

@@ -21,7 +21,8 @@ from .._noise import WhiteNoise
 from .._scene import Scene
 from ..methods._path_integration import path_integration
 from .accuracy import REFERENCE, path_integration_reference, pdf_error
-from .timing import timed
+from .record import record, record_lines
+from .timing import protocol, timed
 
 DTS = (0.02, 0.01, 0.005)
 FORCINGS = {"spectral": SpectralRepresentation(), "nodes": GaussianNodes()}
@@ -60,10 +61,16 @@ def run_forcing(out: pathlib.Path, *, quick: bool = False, log=print) -> list[st
             log(str(row))
     out.mkdir(parents=True, exist_ok=True)
     stem = "forcing_quick" if quick else "forcing"
-    summary = {"t_end": t_end, "reference": {"E[x^2]": exact[0], "E[v^2]": exact[1], "own_L1": ref_l1}, "rows": rows}
+    summary = {
+        "record": record(protocol(1)),
+        "t_end": t_end,
+        "reference": {"E[x^2]": exact[0], "E[v^2]": exact[1], "own_L1": ref_l1},
+        "rows": rows,
+    }
     (out / f"{stem}.json").write_text(json.dumps(summary, indent=1))
     keys = list(rows[0])
     lines = [
+        *record_lines(summary["record"]),
         f"Monte Carlo forcing at t = {t_end:g} s, {n} paths: weak error against path integration "
         f"(E[x^2] = {exact[0]:.5f}, E[v^2] = {exact[1]:.5f}; its own L1 error <= {ref_l1:.1e})",
         "",

@@ -43,8 +43,9 @@ from .._models import VibroImpactOscillator
 from .._noise import WhiteNoise
 from .._scene import Scene
 from ..systems import impact_damper
+from .record import record, record_lines
 from .speed import _table as table_lines
-from .timing import timed
+from .timing import protocol, timed
 
 CUTOFF = 50.0  # rad/s: w_u dt = 2 at dt = 0.04
 DTS = (0.04, 0.02, 0.01, 0.005)
@@ -209,10 +210,13 @@ def run_mdof(out: pathlib.Path, *, quick: bool = False, log=print) -> list[str]:
     fast = speed(50.0, 10_000, 3, log=log) if quick else speed(200.0, 100_000, 3, log=log)
     out.mkdir(parents=True, exist_ok=True)
     stem = "mdof_quick" if quick else "mdof"
-    data = {"convergence": conv, "common_noise_convergence": common, "slow_impacts": slow, "speed": fast}
+    rec = record(protocol("3 (speed rows; the mirroring rows without the warm-up run; the accuracy rows once)"))
+    data = {"record": rec, "convergence": conv, "common_noise_convergence": common, "slow_impacts": slow, "speed": fast}
     (out / f"{stem}.json").write_text(json.dumps(data, indent=1))
     text = (
-        f"Impact damper at t = {t_end:g} s: L1 distances to a Monte Carlo reference ({4 * n} paths, dt = {DT_REF})\n\n"
+        "\n".join(record_lines(rec))
+        + f"\nImpact damper at t = {t_end:g} s: L1 distances to a Monte Carlo reference ({4 * n} paths, "
+        + f"dt = {DT_REF})\n\n"
         + _table(conv)
         + f"\n\nTime-step errors with common random numbers ({n} paths, float64) against dt = {DT_REF / 2}\n\n"
         + _table(common)

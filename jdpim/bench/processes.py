@@ -27,6 +27,7 @@ import time
 import numpy as np
 
 from .._cpu import usable_cores
+from .record import record, record_lines
 from .speed import _table
 
 
@@ -142,7 +143,18 @@ def run_processes(
             row[f"{name}_same_pdf"] = got[name]["pdf"] == base[name]["pdf"]
         rows.append(row)
         log(str(row))
-    summary = {"t_end": t_end, "n_samples": n_samples, "n_points": n_points, "repeats": repeats, "rows": rows}
+    rec = record(
+        f"each configuration in fresh processes: one run to compile, then {repeats} runs after a barrier; "
+        "process 0's median wall time, from the call to the x density (the gathered states included)"
+    )
+    summary = {
+        "record": rec,
+        "t_end": t_end,
+        "n_samples": n_samples,
+        "n_points": n_points,
+        "repeats": repeats,
+        "rows": rows,
+    }
     (out / "processes.json").write_text(json.dumps(summary, indent=1))
     title = (
         f"Reference scene to t = {t_end:g} s (dt = 0.01, float32): Monte Carlo {n_samples} paths (spectral forcing; "
@@ -150,7 +162,7 @@ def run_processes(
         f"warm runs including the x density; speed-up against the first row (1 process on 1 device, free to run "
         f"on every core); a process with fewer cores than the host is bound to its own"
     )
-    (out / "processes.md").write_text("\n".join([title, "", *_table(rows, list(rows[0]))]) + "\n")
+    (out / "processes.md").write_text("\n".join([*record_lines(rec), title, "", *_table(rows, list(rows[0]))]) + "\n")
     return ["processes.json", "processes.md"]
 
 

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
 import pathlib
 import statistics
 import time
@@ -29,6 +28,7 @@ from ..methods._monte_carlo import MonteCarlo
 from ..methods._path_integration import PathIntegration
 from ..sensitivities._estimators import CentralDifference, LikelihoodRatio, NoiseScaling, Pathwise, SensitivityWarning
 from ..sensitivities._sensitivity import sensitivity
+from .record import record, record_lines
 
 ALPHA, D, DT, H = 0.05, 0.05, 0.02, 0.1
 XS = np.linspace(0.0, 3.0, 61)
@@ -111,15 +111,15 @@ def run_sensitivity(out: pathlib.Path, *, quick: bool = False, log=print) -> lis
             log(json.dumps(rows[-1]))
     out.mkdir(parents=True, exist_ok=True)
     stem = "sensitivity_quick" if quick else "sensitivity"
-    load = os.getloadavg()
-    meta = {"load_average": load, "cpu_count": os.cpu_count(), "alpha": ALPHA, "D": D, "dt": DT, "bandwidth": H}
-    (out / f"{stem}.json").write_text(json.dumps({"meta": meta, "rows": rows}, indent=1))
+    rec = record(f"one warm-up call (compilation), then {plan.repeats} timed calls, the median wall time")
+    meta = {"alpha": ALPHA, "D": D, "dt": DT, "bandwidth": H}
+    (out / f"{stem}.json").write_text(json.dumps({"record": rec, "meta": meta, "rows": rows}, indent=1))
     lines = [
         f"# Sensitivity estimators{' (quick)' if quick else ''}",
         "",
+        *record_lines(rec),
         f"r = 1, gamma = 0, alpha = D = {ALPHA}, dt = {DT}, h = {H}; Monte Carlo paths for the sampling estimators, "
-        "path integration (no paths, no sampling error) on two grids; load average at the end "
-        f"{load[0]:.1f} on {os.cpu_count()} cores (timings on a shared machine).",
+        "path integration (no paths, no sampling error) on two grids.",
         "",
         "| t | parameter | estimator | paths | rel. L2 error | rel. stderr | first call s | median s | warned |",
         "|---|---|---|---|---|---|---|---|---|",

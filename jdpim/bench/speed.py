@@ -29,7 +29,6 @@ import itertools
 import json
 import os
 import pathlib
-import platform
 import resource
 import statistics
 import time
@@ -42,7 +41,8 @@ from .._excitation import GaussianNodes, SpectralRepresentation, synthesize
 from .._integrate import ImpactRule
 from ..methods._paths import _path_inputs, _simulate_chunk, dpim_inputs, monte_carlo_inputs
 from .accuracy import ALPHA, GAMMA, D, R, grids, paper_scene
-from .timing import timed
+from .record import record, record_lines
+from .timing import protocol, timed
 
 T_END, DT = 200.0, 0.01
 BASELINE_BATCHES = (1_000, 10_000, 100_000)
@@ -131,7 +131,7 @@ def numpy_mcs(
     Returns:
         ``(x, v)`` at ``t_end``, each of shape ``(n_paths,)``.
 
-    Example:
+    Examples:
         >>> x, v = numpy_mcs(100, t_end=1.0)
         >>> x.shape, bool((x >= 0).all())
         ((100,), True)
@@ -209,7 +209,7 @@ def jax_mcs(n_paths: int, n_steps: int, key, *, dtype: str = "float32", dt: floa
     ``(2, n_paths)`` per step (the middle and end nodes; the key of step ``k`` is ``fold_in(key, k)``), the same
     Nystrom RK4 and mirror rule (``jnp.where``). Returns ``(x, v)`` at the end, each ``(n_paths,)``.
 
-    Example:
+    Examples:
         >>> x, v = jax_mcs(100, 100, jax.random.key(0))
         >>> x.shape, bool((x >= 0).all())
         ((100,), True)
@@ -347,20 +347,16 @@ def run_speed(out: pathlib.Path, *, quick: bool = False, log=print) -> list[str]
                 rows.append(row)
                 log(f"[speed]   {row}")
     info = {
+        "record": record(
+            protocol("3" if quick else "3 (once at 1e5 paths)")
+            + "; the densities (densities_s) timed apart; the NumPy and plain JAX baselines: one warm-up run, "
+            + ("then 3 timed runs over 2000 steps, the median" if quick else "then 3 timed runs (NumPy: once at 1e5)")
+        ),
         "scene": {"alpha": ALPHA, "gamma": GAMMA, "r": R, "D": D, "t_end": T_END, "dt": DT},
         "numpy_baseline": {"best": best, "batches": baseline_rows},
         "jax_baseline": {"best": best_jax, "batches": jax_rows},
         "rows": rows,
-        "machine": {
-            "platform": platform.platform(),
-            "cpu_cores": os.cpu_count(),
-            "devices": jax.local_device_count(),
-            "backend": jax.default_backend(),
-            "jax": jax.__version__,
-            "numpy": np.__version__,
-        },
         "load_average_after_baseline": load_after_baseline,
-        "load_average": [round(x, 2) for x in os.getloadavg()],
         "quick": quick,
     }
     out.mkdir(parents=True, exist_ok=True)
@@ -383,7 +379,7 @@ def run_speed(out: pathlib.Path, *, quick: bool = False, log=print) -> list[str]
         "x_jax",
         "peak_rss_mib",
     ]
-    lines = _table(rows, cols)
+    lines = record_lines(info["record"]) + _table(rows, cols)
     lines.append("\nNumPy baseline (`numpy_mcs`: RK4, half-step Gaussian forcing, mirror rule; one core), per batch:\n")
     lines += _table(baseline_rows, ["dtype", "n_paths", "n_steps", "repeats", "median_s", "path_steps_per_s"])
     lines.append("\nPlain JAX baseline (`jax_mcs`: the same scheme as one jitted `lax.scan`; one device), per batch:\n")
@@ -396,8 +392,7 @@ def run_speed(out: pathlib.Path, *, quick: bool = False, log=print) -> list[str]
                 f" Plain JAX (`x_jax`): {best_jax[dtype]['n_paths']} paths per batch, {best_jax[dtype]['key']} keys, "
             )
             lines[-1] += f"{best_jax[dtype]['path_steps_per_s']:.3g} path-steps/s."
-    lines.append(f"\nLoad average (1, 5, 15 min) after the baseline: {load_after_baseline}; ")
-    lines[-1] += f"at the end: {info['load_average']}."
+    lines.append(f"\nLoad average (1, 5, 15 min) after the baseline: {load_after_baseline}.")
     (out / f"{name}.md").write_text("\n".join(lines) + "\n")
     log("\n".join(lines))
     return [f"{name}.json", f"{name}.md"]

@@ -14,9 +14,7 @@ backend reports one (GPUs), else the process's resident high-water mark.
 from __future__ import annotations
 
 import json
-import os
 import pathlib
-import platform
 import resource
 import statistics
 import time
@@ -28,6 +26,7 @@ from .._excitation import GaussianNodes, SpectralRepresentation
 from .._integrate import ImpactRule
 from ..methods._paths import _finish, dpim_inputs, monte_carlo_inputs, run_paths
 from .accuracy import grids, paper_scene
+from .record import record, record_lines
 
 
 def _peak_mib() -> float:
@@ -120,25 +119,20 @@ def run_throughput(
                     }
                 )
                 log(f"[throughput]   {rows[-1]}")
-    devices = jax.local_devices()
+    rec = record(
+        f"the first call (compilation included) timed apart, then {repeats} warm calls, the median wall time "
+        "(paths and the x density); input preparation outside the clock"
+    )
     info = {
+        "record": rec,
         "scene": {"alpha": 0.03, "gamma": 0.03, "r": 0.98, "D": 0.03, "t_end": t_end, "dt": dt},
         "rows": rows,
-        "machine": {
-            "platform": platform.platform(),
-            "backend": jax.default_backend(),
-            "devices": [d.device_kind for d in devices],
-            "jax": jax.__version__,
-        },
-        "load_average": [round(x, 2) for x in os.getloadavg()],
     }
     out.mkdir(parents=True, exist_ok=True)
     (out / "throughput.json").write_text(json.dumps(info, indent=1) + "\n")
     cols = list(rows[0]) if rows else []
-    lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+    lines = record_lines(rec) + ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     lines += ["| " + " | ".join(str(r[c]) for c in cols) + " |" for r in rows]
-    lines.append(f"\n{len(devices)} x {devices[0].device_kind} ({jax.default_backend()}), jax {jax.__version__}.")
-    lines.append(f"Load average (1, 5, 15 min) at the end: {info['load_average']}.")
     (out / "throughput.md").write_text("\n".join(lines) + "\n")
     log("\n".join(lines))
     return ["throughput.json", "throughput.md"]

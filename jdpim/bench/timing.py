@@ -22,6 +22,15 @@ from ..methods._paths import (
 from ..results._samples import Result
 
 
+def protocol(repeats: int | str) -> str:
+    """The timing protocol of :func:`timed` in words, for the benchmark's record."""
+    return (
+        f"each configuration compiled ahead of time (compile_s, apart), run once to warm up, then timed {repeats} "
+        "times; the median wall time; the clock covers the excitation, the integration and the transfer of the "
+        "saved states"
+    )
+
+
 @dataclasses.dataclass(frozen=True)
 class Timing:
     """Wall times in s of one configuration: ``compile_s`` (AOT), every warm run, and their median."""

@@ -57,7 +57,7 @@ def solve(scene: Scene, method: AbstractMethod):
         ``times``, ``pdf_error``): :class:`jdpim.Result` (paths) for DPIM and Monte Carlo,
         :class:`jdpim.GridResult` (a phase-space grid) for path integration.
 
-    Example:
+    Examples:
         >>> import jdpim
         >>> scene = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=2.0, dt=0.01)
         >>> res = jdpim.solve(scene, jdpim.MonteCarlo(n_samples=32, seed=1))

@@ -23,9 +23,8 @@ class DPIM(SamplingMethod):
     trajectories; densities are ``p(y, t) = sum_q P_q N(y; y_q(t), sigma^2)`` (``Result.pdf``).
 
     Defaults come from the accuracy study (``docs/accuracy.md``): the scene's cutoff ``2 / dt``, the
-    Box-Muller ("rayleigh") random functions and the bandwidth constant ``c = 1.25``. With them, N = 1000
-    gave a mean L1 error of about 0.05 on the exact r = 1 case, as Monte Carlo with 1000 samples did;
-    N = 16000 gave 0.014-0.017, which Monte Carlo needed about 30000 samples for.
+    Box-Muller ("rayleigh") random functions and the bandwidth constant ``c = 1.25``. With them, N points
+    are worth about N Monte Carlo samples (the accuracy bench's record, ``docs/bench/accuracy.json``).
 
     Args:
         n_points: number of representative points (>= 2), if ``points`` is not given.
@@ -40,7 +39,7 @@ class DPIM(SamplingMethod):
     ``solve`` returns a :class:`jdpim.Result` with ``weights = P_q``; its ``states`` are sharded over
     ``devices`` (over several CPU devices, gathered on the first one).
 
-    Example:
+    Examples:
         >>> import jdpim
         >>> scene = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=2.0, dt=0.01)
         >>> jdpim.solve(scene, jdpim.DPIM(n_points=64)).states.shape
@@ -84,7 +83,7 @@ def dpim(
 ) -> Result:
     """``jdpim.solve(scene, jdpim.DPIM(n_points, ...))``: response PDFs by DPIM (see :class:`DPIM`).
 
-    Example:
+    Examples:
         >>> import jdpim
         >>> scene = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=2.0, dt=0.01)
         >>> jdpim.dpim(scene, n_points=64).states.shape

@@ -27,7 +27,7 @@ class MonteCarlo(SamplingMethod):
         devices: devices to split the samples over (``None``: every local device).
         progress: progress line on stderr (``None``: only for runs of more than one block of paths).
 
-    Example:
+    Examples:
         >>> import jdpim
         >>> scene = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=2.0, dt=0.01)
         >>> jdpim.solve(scene, jdpim.MonteCarlo(n_samples=32, seed=1)).states.shape
@@ -61,7 +61,7 @@ def monte_carlo(
 ) -> Result:
     """``jdpim.solve(scene, jdpim.MonteCarlo(n_samples, seed, ...))``: response PDFs by Monte Carlo simulation.
 
-    Example:
+    Examples:
         >>> import jdpim
         >>> scene = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=2.0, dt=0.01)
         >>> jdpim.monte_carlo(scene, n_samples=32, seed=1).states.shape

@@ -56,13 +56,15 @@ class PathIntegration(AbstractMethod):
     converge, or densities are not finite.
 
     Args:
-        n_x, n_v: grid nodes in ``x`` (from the barrier to ``barrier + x_max``, or ``[-x_max, x_max]``
-            without a barrier) and in ``v`` (``[-v_max, v_max]``); ``n_v`` odd puts a node at ``v = 0``.
-        x_max, v_max: grid extents; ``None`` estimates them from the scene: the energy ``H*`` at which the
-            stochastically averaged stationary density ``exp(-(a_e H + b H^2)/D)`` falls by ``e^-20``
-            (``a_e`` = linear damping + ``(1 - r^2)/pi``, ``b = 3 gamma / 4``), ``v_max = sqrt(2 H*)``,
+        n_x: grid nodes in ``x`` (from the barrier to ``barrier + x_max``, or ``[-x_max, x_max]`` without a
+            barrier).
+        n_v: grid nodes in ``v`` (``[-v_max, v_max]``); ``n_v`` odd puts a node at ``v = 0``.
+        x_max: the grid's extent in ``x``; ``None`` estimates it (and ``v_max``) from the scene: the energy
+            ``H*`` at which the stochastically averaged stationary density ``exp(-(a_e H + b H^2)/D)`` falls by
+            ``e^-20`` (``a_e`` = linear damping + ``(1 - r^2)/pi``, ``b = 3 gamma / 4``), ``v_max = sqrt(2 H*)``,
             ``x_max = v_max / omega``; a start away from rest widens them. Give them explicitly when
             differentiating with respect to parameters that set them (D, alpha, gamma, r).
+        v_max: the grid's extent in ``v``; ``None`` estimates it (see ``x_max``).
         tau: time step, s (saved times must be multiples of it, counted from the start).
         substeps: RK4 substeps of the back-trace over one step.
         order: interpolation points per axis (2: linear, 4: cubic, 6: quintic Lagrange), or ``None``:
@@ -72,11 +74,13 @@ class PathIntegration(AbstractMethod):
             linearised at the start, at time ``t0`` (s, a multiple of ``tau``), folded at the barrier.
         newton: most Newton steps of the stationary solve (each one linear solve); it stops earlier once
             the L1 residual of a step is below 1e-8 (float64) or 3e-6 (float32).
-        max_iter, max_restarts, restart: BiCGStab iterations per attempt and attempts (each from the best iterate so
-            far) of every linear solve (Newton steps, and the tangent and adjoint solves of derivatives),
-            which stops at a relative residual of 1e-9 (float64) or 1e-5 (float32); where they do not reach
-            it, up to ``max_restarts`` cycles of GMRES with Krylov dimension ``restart`` follow. A solve that
-            ends above 100 times the tolerance returns NaN (non-finite, with a ``PathIntegrationWarning``).
+        max_iter: BiCGStab iterations per attempt of every linear solve (Newton steps, and the tangent and
+            adjoint solves of derivatives), which stops at a relative residual of 1e-9 (float64) or 1e-5
+            (float32).
+        max_restarts: BiCGStab attempts (each from the best iterate so far); where they do not reach the
+            tolerance, up to ``max_restarts`` cycles of GMRES follow.
+        restart: the Krylov dimension of those GMRES cycles. A solve that ends above 100 times the tolerance
+            returns NaN (non-finite, with a ``PathIntegrationWarning``).
         warmup: plain steps before the Newton solve (from the averaged law ``exp(-(a_e H + b H^2)/q)``
             estimated as for the extents, or a Gaussian when the parameters are traced).
         leak_tol: largest mass allowed in the outermost node rows before a ``PathIntegrationWarning``.
@@ -89,7 +93,7 @@ class PathIntegration(AbstractMethod):
         initial: a density ``initial(x, v)`` at ``t = 0`` (vectorised over node arrays of shape
             ``(n_x, n_v)``, JAX-traceable) instead of the point-mass start; renormalised on the grid.
 
-    Example:
+    Examples:
         >>> import jdpim
         >>> scene = jdpim.Scene(jdpim.VibroImpactOscillator(alpha=0.1, gamma=None, r=1.0),
         ...                     noise=jdpim.WhiteNoise(D=0.01), t_end=2.0, dt=0.1)
@@ -537,7 +541,7 @@ def path_integration(
 ) -> GridResult:
     r"""``jdpim.solve(scene, settings)``, with ``stationary`` and ``initial`` set where given (see PathIntegration).
 
-    Example:
+    Examples:
         >>> import jdpim
         >>> scene = jdpim.Scene(jdpim.VibroImpactOscillator(alpha=0.1, gamma=None, r=1.0),
         ...                     noise=jdpim.WhiteNoise(D=0.01), t_end=2.0, dt=0.1)

@@ -238,7 +238,7 @@ def first_passage(
     Returns:
         :class:`FirstPassage`: ``probability`` and ``stderr`` of shape ``(S, L)``.
 
-    Example:
+    Examples:
         >>> import jdpim
         >>> scene = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=5.0, dt=0.01, save_at=(1.0, 5.0))
         >>> fp = jdpim.first_passage(scene, "x", [0.1, 0.3], jdpim.MonteCarlo(n_samples=2000, seed=0))

@@ -79,7 +79,7 @@ def impact_statistics(scene: Scene, method: SamplingMethod, speed_edges=None) ->
     Returns:
         :class:`ImpactStatistics`.
 
-    Example:
+    Examples:
         >>> import jdpim
         >>> scene = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=5.0, dt=0.01, save_at=(1.0, 5.0))
         >>> st = jdpim.impact_statistics(scene, jdpim.MonteCarlo(n_samples=500, seed=0))

@@ -110,7 +110,8 @@ def kde(samples, weights, grid, sigma, barrier=None):
     """Weighted 1-D Gaussian KDE on ``grid``; shaped like ``grid`` (a scalar, or 1-D with one point or more).
 
     Args:
-        samples, weights: shape ``(N,)``.
+        samples: shape ``(N,)``.
+        weights: shape ``(N,)``.
         grid: evaluation points: a scalar, or shape ``(G,)``, strictly increasing.
         sigma: kernel standard deviation (> 0).
         barrier: reflect the kernel at this position (density zero below it), or ``None``.
@@ -141,7 +142,7 @@ def kde_stderr(samples, weights, grid, sigma, barrier=None):
     weights ``1/n`` this is the sample variance of ``K_q(y)`` over ``n``. The bandwidth is held fixed (the
     error of the smoothed density; the smoothing bias is not included). Shaped like ``grid``.
 
-    Example:
+    Examples:
         >>> import jdpim, jax.numpy as jnp
         >>> y = jnp.linspace(-2.0, 2.0, 101)
         >>> se = jdpim.kde_stderr(y, jnp.full(101, 1 / 101), 0.0, 0.5)

@@ -272,7 +272,7 @@ def sensitivity(
         on a velocity grid too coarse for one step's diffusion; path integration's own
         ``PathIntegrationWarning`` reports its nominal grid.
 
-    Example:
+    Examples:
         >>> import jdpim, numpy as np
         >>> model = jdpim.VibroImpactOscillator(alpha=0.1, gamma=None, barrier=None)  # cheap to compile
         >>> scene = jdpim.Scene(model, noise=jdpim.WhiteNoise(D=0.05), t_end=2.0, dt=0.02)
