@@ -95,7 +95,7 @@ class _NotStored(Exception):
     """A value with no file form (a Python function, a device, a user class), found at ``where``."""
 
     def __init__(self, where: str, value: Any):
-        super().__init__(f"{where} is {type(value).__name__}")
+        super().__init__(f"{where} is a {type(value).__name__}")
         self.where = where
 
 
@@ -158,6 +158,10 @@ def save(obj, path, *, scene=None, method=None) -> None:
     classes = _classes()
     if type(obj).__name__ not in RESULTS or classes[type(obj).__name__] is not type(obj):
         raise TypeError(f"save takes a jdpim result ({', '.join(RESULTS)}), got {type(obj).__name__}")
+    if scene is not None and not isinstance(scene, classes["Scene"]):
+        raise TypeError(f"scene must be the jdpim.Scene the result came from, or None; got {type(scene).__name__}")
+    if method is not None and getattr(method, "name", None) != obj.method:
+        raise ValueError(f"method must be the method the result came from ({obj.method!r}) or None, got {method!r}")
     writer = _Writer(classes)
     doc = {
         "format": FORMAT,
@@ -169,7 +173,7 @@ def save(obj, path, *, scene=None, method=None) -> None:
         doc["result"] = writer.encode(obj, "result")
     except _NotStored as e:  # a result holds only arrays, numbers, text and jdpim settings
         raise TypeError(f"cannot save this {type(obj).__name__}: {e}") from None
-    lost = []
+    lost, why = [], []
     for key, value in (("scene", scene), ("method", method)):
         doc[f"{key}_text"] = None if value is None else repr(value)
         kept = dict(writer.arrays)
@@ -178,11 +182,12 @@ def save(obj, path, *, scene=None, method=None) -> None:
         except _NotStored as e:
             writer.arrays = kept  # none of its arrays
             doc[key] = None
-            lost.append(f"{key} ({e})")
+            lost.append(key)
+            why.append(str(e))
     if lost:
         warnings.warn(
-            f"{os.fspath(path)}: the {' and the '.join(lost)} cannot be stored; the file keeps only its repr, "
-            "and jdpim.load(..., metadata=True) gives None for it",
+            f"{os.fspath(path)}: the {' and the '.join(lost)} cannot be stored ({'; '.join(why)}): the file keeps "
+            f"{'its' if len(lost) == 1 else 'their'} repr only (Metadata.{'_text, '.join(lost)}_text)",
             PersistenceWarning,
             stacklevel=3,
         )
@@ -246,15 +251,19 @@ def load(path, *, metadata: bool = False):
             stacklevel=2,
         )
     classes = _classes()
-    result = _decode(doc["result"], arrays, classes, written)
+    try:
+        result = _decode(doc["result"], arrays, classes, written)
+        parts = {k: _decode(doc[k], arrays, classes, written) for k in ("scene", "method")} if metadata else {}
+    except (KeyError, TypeError, AttributeError) as e:  # a document jdpim's save did not write
+        raise ValueError(f"{name}: malformed jdpim document ({type(e).__name__}: {e})") from None
     if not metadata:
         return result
-    parts = {k: _decode(doc[k], arrays, classes, written) for k in ("scene", "method")}
     lost = [k for k in parts if parts[k] is None and doc[f"{k}_text"] is not None]
     if lost:
         warnings.warn(
-            f"{name}: the {' and the '.join(lost)} held Python functions or devices and are not restored (None); "
-            f"Metadata.{lost[0]}_text describes {'it' if len(lost) == 1 else 'them'}",
+            f"{name}: the {' and the '.join(lost)} {'is' if len(lost) == 1 else 'are'} not restored (None): saved "
+            f"with a Python function, a device or a user class; Metadata.{lost[0]}_text describes "
+            f"{'it' if len(lost) == 1 else 'them'}",
             PersistenceWarning,
             stacklevel=2,
         )

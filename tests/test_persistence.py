@@ -157,12 +157,15 @@ def test_grid_result_round_trip_keeps_the_coarse_solve(tmp_path):
 
 def test_first_passage_and_impact_statistics_round_trip(tmp_path):
     fp = first_passage()
-    back, meta = round_trip(fp, tmp_path / "fp.npz", method=jdpim.SubsetSimulation(n_per_level=100, p0=0.1))
+    back, meta = round_trip(fp, tmp_path / "fp.npz", method=jdpim.MonteCarlo(32, seed=1))
     assert_same(back, fp)
-    assert list(back.derivative) == ["alpha", "D"] and meta.method == jdpim.SubsetSimulation(n_per_level=100, p0=0.1)
+    assert list(back.derivative) == ["alpha", "D"] and meta.method == jdpim.MonteCarlo(32, seed=1)
     subset = jdpim.FirstPassage((5.0,), fp.levels, fp.probability[1:], None, fp.lost_mass[1:], "subset_simulation",
                                 n_evaluations=370)  # fmt: skip
-    assert_same(round_trip(subset, tmp_path / "subset.npz")[0], subset)
+    method = jdpim.SubsetSimulation(n_per_level=100, p0=0.1)
+    back, meta = round_trip(subset, tmp_path / "subset.npz", method=method)
+    assert_same(back, subset)
+    assert back.n_evaluations == 370 and meta.method == method
     st = impact_statistics()
     assert_same(round_trip(st, tmp_path / "impacts.npz")[0], st)
 
@@ -224,6 +227,9 @@ def test_loading_runs_no_code_from_the_file(tmp_path):
     rewrite(path, lambda doc: doc["result"].update({"class": "Popen"}))
     with pytest.raises(ValueError, match="names a class 'Popen' that this jdpim does not know"):
         jdpim.load(path)
+    rewrite(path, lambda doc: doc["result"].update({"class": "Result", "fields": {"times": {"nothing": 1}}}))
+    with pytest.raises(ValueError, match="malformed jdpim document"):
+        jdpim.load(path)
     with open(tmp_path / "pickled.npz", "wb") as fh:
         np.savez(fh, jdpim=np.array("{}"), evil=np.array([print], dtype=object))
     with pytest.raises(ValueError, match="allow_pickle"):
@@ -240,7 +246,11 @@ def test_loading_runs_no_code_from_the_file(tmp_path):
         )  # fmt: skip
 
 
-def test_save_refuses_what_is_not_a_result(tmp_path):
+def test_save_refuses_what_is_not_a_result_or_its_context(tmp_path):
+    with pytest.raises(ValueError, match="method must be the method the result came from .'monte_carlo'. or None"):
+        first_passage().save(tmp_path / "x.npz", method=jdpim.DPIM(16))
+    with pytest.raises(TypeError, match="scene must be the jdpim.Scene the result came from, or None; got dict"):
+        first_passage().save(tmp_path / "x.npz", scene={"D": 0.03})
     with pytest.raises(TypeError, match="save takes a jdpim result"):
         jdpim._io.save({"states": np.zeros(3)}, tmp_path / "x.npz")
     with pytest.raises(TypeError, match="save outside jax.jit"):
