@@ -7,6 +7,8 @@ small sensitivity; the others are built from arrays of the shapes their function
 
 import json
 import math
+import pathlib
+import re
 import sys
 import zipfile
 
@@ -137,12 +139,15 @@ def test_result_of_several_degrees_of_freedom_with_its_scene(tmp_path):
     )
     states = np.random.default_rng(1).standard_normal((5, 2, 4))
     states[0, 0, 0] = np.frombuffer(np.uint64(0x7FF8_0000_0000_BEEF).tobytes(), np.float64)[0]  # a NaN payload
-    res = jdpim.Result((1.0, 2.0), states, np.full(5, 0.2), {"x1": np.float64(-0.2)}, "monte_carlo", model.coordinates)
-    back, meta = round_trip(res, tmp_path / "mdof.npz", scene=scene, method=jdpim.MonteCarlo(5, seed=3))
+    points = jdpim.randomised_points(scene.input_distributions(), 5, 0, n_reference=256)  # a DPIM point set
+    res = jdpim.Result((1.0, 2.0), states, points.weights, {"x1": np.float64(-0.2)}, "dpim", model.coordinates)
+    method = jdpim.DPIM(points=points, chunk_size=4, progress=False)
+    back, meta = round_trip(res, tmp_path / "mdof.npz", scene=scene, method=method)
     assert_same(back, res)
     assert type(back.barrier["x1"]) is np.float64
     assert_same(meta.scene, scene)
-    assert meta.method == jdpim.MonteCarlo(5, seed=3)
+    assert_same(meta.method, method)
+    assert meta.method.points.distributions == scene.input_distributions()
 
 
 def test_grid_result_round_trip_keeps_the_coarse_solve(tmp_path):
@@ -257,7 +262,7 @@ def test_save_refuses_what_is_not_a_result_or_its_context(tmp_path):
         jax.jit(lambda fp: fp.save(tmp_path / "x.npz"))(first_passage())
 
 
-def test_to_xarray_labels_every_array(monkeypatch):
+def test_to_xarray_labels_every_array(tmp_path, monkeypatch):
     import xarray as xr  # in the test extra (pip install -e .[test]): this test does not skip
 
     fp = first_passage()
@@ -268,6 +273,9 @@ def test_to_xarray_labels_every_array(monkeypatch):
     assert "grid_error" not in ds and ds.attrs["method"] == "monte_carlo"
     ds = grid_result().to_xarray()
     assert ds["density"].dims == ("time", "x", "v") and ds.attrs["folded"] == 1
+    ds.to_netcdf(tmp_path / "grid.nc", engine="scipy")  # attributes and variables netCDF 3 can hold
+    with xr.open_dataset(tmp_path / "grid.nc", engine="scipy") as nc:
+        assert nc.load().identical(ds)
     np.testing.assert_array_equal(ds["density"].sel(time=1.0).values, np.asarray(grid_result().joint(1.0)))
     ds = impact_statistics().to_xarray()
     np.testing.assert_allclose(ds["speed"].values, [0.05, 0.15])
@@ -282,3 +290,13 @@ def test_to_xarray_labels_every_array(monkeypatch):
     monkeypatch.setitem(sys.modules, "xarray", None)  # as if xarray were not installed
     with pytest.raises(ImportError, match=r"pip install jdpim\[xarray\]"):
         res.to_xarray()
+
+
+def test_the_docs_examples_run(tmp_path, monkeypatch):
+    """The code blocks of docs/persistence.md, in order, in a fresh folder."""
+    page = pathlib.Path(__file__).parent.parent / "docs" / "persistence.md"
+    blocks = re.findall(r"```python\n(.*?)```", page.read_text(), flags=re.S)
+    assert len(blocks) == 2
+    monkeypatch.chdir(tmp_path)
+    for code in blocks:
+        exec(compile(code, str(page), "exec"), {})
