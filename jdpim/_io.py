@@ -2,12 +2,13 @@ r"""Results on disk: ``result.save(path)`` and ``jdpim.load(path)``, and labelle
 
 A file is a NumPy ``.npz`` archive (a zip of ``.npy`` arrays) that ``numpy.load(path, allow_pickle=False)``
 opens. Every array of the result, the scene and the method is one entry, named by where it sits
-(``result/states``, ``scene/model/alpha``); the entry ``jdpim`` holds a JSON document (a 0-d text array) with
+(``result/states``, ``result/derivative/alpha``); the entry ``jdpim`` holds a JSON document (a 0-d text array) with
 the file format, the versions that wrote it and the objects' structure: each object is
 ``{"class": name, "fields": {...}}``, arrays are ``{"array": entry}`` (``{"scalar": entry}`` for a NumPy
 scalar), tuples ``{"tuple": [...]}``, dicts ``{"dict": [[key, value], ...]}`` and non-finite floats
-``{"float": "nan"}``. Loading rebuilds objects only from :data:`CLASSES`, an explicit list of jdpim's own
-classes, by their constructors: no pickle, no import, no code from the file runs. Arrays come back as NumPy
+``{"float": "nan"}``; other numbers, text and lists are themselves. Loading rebuilds objects only from an
+explicit list of jdpim's own classes (``_classes``), by their constructors: no pickle, no import, no code from
+the file runs. Arrays come back as NumPy
 arrays with their dtypes and bits; every jdpim function takes them.
 """
 
@@ -96,7 +97,6 @@ class _NotStored(Exception):
 
     def __init__(self, where: str, value: Any):
         super().__init__(f"{where} is a {type(value).__name__}")
-        self.where = where
 
 
 class _Writer:
@@ -237,6 +237,8 @@ def load(path, *, metadata: bool = False):
             raise ValueError(f"{name} is not a jdpim result file (no {ENTRY!r} entry): write one with result.save")
         doc = json.loads(str(npz[ENTRY]))
         arrays = {k: npz[k] for k in npz.files if k != ENTRY}
+    if not isinstance(doc, dict):
+        raise ValueError(f"{name}: malformed jdpim document (a JSON {type(doc).__name__}, not an object)")
     written = doc.get("versions", {}).get("jdpim", "unknown")
     if doc.get("format") != FORMAT:
         raise ValueError(
@@ -317,14 +319,14 @@ def to_xarray(obj):
             "edge_mass": ("time", obj.edge_mass),
         }
         data |= {k: ((), getattr(obj, k)) for k in ("residual", "step_gain", "newton_steps", "virial")}
-        coords = {"time": times, "x": obj.x, "v": obj.v}
+        coords = {"time": times, "x": np.asarray(obj.x), "v": np.asarray(obj.v)}
         attrs |= {k: int(getattr(obj, k)) for k in ("order", "folded", "stationary", "has_barrier")}
     elif kind == "FirstPassage":
         tl = ("time", "level")
         data = {k: (tl, getattr(obj, k)) for k in ("probability", "stderr", "lost_mass", "grid_error")}
         for key in ("derivative", "derivative_stderr"):
             data |= {f"{key}_{n}": (tl, d) for n, d in (getattr(obj, key) or {}).items()}
-        coords = {"time": times, "level": obj.levels}
+        coords = {"time": times, "level": np.asarray(obj.levels)}
         attrs |= {k: getattr(obj, k) for k in ("n_evaluations", "n_replicates")}
     elif kind == "ImpactStatistics":
         data = {k: ("time", getattr(obj, k)) for k in ("probability", "probability_stderr", "mean_count")}
