@@ -1,8 +1,9 @@
 """Results on disk: ``result.save(path)`` / ``jdpim.load(path)`` round trips, their metadata, and ``to_xarray``.
 
 Exact means: the same pytree structure (static fields: times, method, settings) and every leaf with the same
-dtype, shape and bytes (NaN payloads included). Results computed here are the session's DPIM fixture and a
-small sensitivity; the others are built from arrays of the shapes their functions return (no compilation).
+dtype, shape and bytes (NaN payloads included). Results computed here are the session's DPIM fixture, a small
+sensitivity and the docs page's Monte Carlo example; the others are built from arrays of the shapes their
+functions return (no compilation).
 """
 
 import json
