@@ -146,6 +146,7 @@ def test_result_of_several_degrees_of_freedom_with_its_scene(tmp_path):
     back, meta = round_trip(res, tmp_path / "mdof.npz", scene=scene, method=method)
     assert_same(back, res)
     assert type(back.barrier["x1"]) is np.float64
+    assert jax.jit(lambda r: r.n_nonfinite())(back).tolist() == [1, 0]  # a loaded result passes through jax.jit
     assert_same(meta.scene, scene)
     assert_same(meta.method, method)
     assert meta.method.points.distributions == scene.input_distributions()
