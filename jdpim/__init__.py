@@ -16,6 +16,8 @@ from ._excitation import GaussianNodes as GaussianNodes
 from ._excitation import SpectralRepresentation as SpectralRepresentation
 from ._integrate import ImpactRule as ImpactRule
 from ._integrate import Substeps as Substeps
+from ._io import PersistenceWarning as PersistenceWarning
+from ._io import load as load
 from ._mdof import Barrier as Barrier
 from ._mdof import MDOFOscillator as MDOFOscillator
 from ._models import AbstractOscillator as AbstractOscillator

@@ -169,17 +169,17 @@ def test_run_scene_file_writes_only_what_it_asks(tmp_path, capsys):
     assert capsys.readouterr().err == ""  # --quiet: no progress lines
     with np.load(tmp_path / "small.npz", allow_pickle=False) as npz:
         arrays = {k: npz[k] for k in npz.files}
-    assert set(arrays) == {
-        "times", "x_grid", "monte_carlo_pdf_x", "monte_carlo_stderr_x", "monte_carlo_states",
-        "monte_carlo_weights", "monte_carlo_nonfinite",
-    }  # fmt: skip
-    assert arrays["monte_carlo_pdf_x"].shape == (2, 201) and arrays["monte_carlo_states"].shape == (64, 2, 2)
+    assert set(arrays) == {"times", "x_grid", "monte_carlo_pdf_x", "monte_carlo_stderr_x", "monte_carlo_nonfinite"}
+    assert arrays["monte_carlo_pdf_x"].shape == (2, 201)
+    res, saved = jdpim.load(tmp_path / "small_monte_carlo.npz", metadata=True)  # states = true: the whole result
+    assert res.states.shape == (64, 2, 2) and saved.scene.model.gamma is None and saved.method.n_samples == 64
     integral = np.trapezoid(arrays["monte_carlo_pdf_x"][-1], arrays["x_grid"])
     assert 0.97 < integral <= 1.0 + 1e-4  # the grid holds 99.9 % of the samples
     meta = json.loads((tmp_path / "small.json").read_text())
     assert meta["parameters"]["model"]["gamma"] == "none"
     assert meta["versions"]["jdpim"] == jdpim.__version__ and "jax" in meta["versions"]
-    assert sorted(meta["files"]) == sorted(["small.npz", "small_timing.csv", "small_marginal_x.png", "small.json"])
+    files = ["small.npz", "small_timing.csv", "small_monte_carlo.npz", "small_marginal_x.png", "small.json"]
+    assert sorted(meta["files"]) == sorted(files)
     assert all((tmp_path / f).is_file() for f in meta["files"])
 
 

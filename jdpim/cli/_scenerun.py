@@ -1,5 +1,6 @@
-"""Run a scene file: the named methods, the densities it asks for, stored as ``.npz`` + JSON + CSV + figures;
-with a ``[reliability]`` table also first-passage probabilities (``.npz`` + Markdown)."""
+"""Run a scene file: the named methods, the densities it asks for, stored as ``.npz`` + JSON + CSV + figures
+(and each method's result, ``result.save``, with ``states = true``); with a ``[reliability]`` table also
+first-passage probabilities (``.npz`` + Markdown)."""
 
 from __future__ import annotations
 
@@ -54,17 +55,19 @@ def run(sf: SceneFile, out: pathlib.Path, *, progress: bool = True, log=print) -
 
     The marginals of ``sf.outputs.marginals`` and of the derived quantities ``sf.outputs.derived`` and the joint
     densities of the pairs ``sf.outputs.joint`` are taken at every saved time on common grids (``report.grids``,
-    ``report.quantity_grids``; a joint density on every second node).
+    ``report.quantity_grids``; a joint density on every second node). With ``sf.outputs.states`` every method's
+    result goes to ``<stem>_<method>.npz`` (``result.save``, with the scene and the method; ``jdpim.load`` reads it).
     With ``sf.reliability``, the :func:`first_passage` arrays go to the same ``.npz`` and its tables to
     ``<stem>_first_passage.md`` (and the log). Returns the metadata also written to the JSON file (parameters,
     versions, wall time per method in s, compilation included, array shapes, file names).
     """
     scene, stem, outputs = sf.scene, sf.path.stem, sf.outputs
     out.mkdir(parents=True, exist_ok=True)
-    results, timings, rows = {}, {}, []
+    results, methods, timings, rows = {}, {}, {}, []
     for m in sf.methods:
         what = f"{m.name}: {m.n_paths} paths, {scene.n_steps} steps of {scene.dt:g} s"
-        results[m.name], wall, cpu = report.solve_timed(scene, m.method(progress=progress), log, what)
+        methods[m.name] = m.method(progress=progress)
+        results[m.name], wall, cpu = report.solve_timed(scene, methods[m.name], log, what)
         timings[m.name] = round(wall, 3)
         row = {"method": m.name, "paths": m.n_paths, "steps": scene.n_steps}
         rows.append(row | {"wall_s": round(wall, 3), "cpu_s": round(cpu, 3)})
@@ -85,11 +88,12 @@ def run(sf: SceneFile, out: pathlib.Path, *, progress: bool = True, log=print) -
     arrays |= report.densities(
         results, scene.save_at, marginal_grids, joints, joint_times=scene.save_at, quantities=derived
     )
-    for name, res in results.items():
-        if outputs.states:
-            arrays[f"{name}_states"], arrays[f"{name}_weights"] = np.asarray(res.states), np.asarray(res.weights)
-        arrays[f"{name}_nonfinite"] = np.asarray(res.n_nonfinite())
     files = [f"{stem}.npz", f"{stem}_timing.csv"]
+    for name, res in results.items():
+        arrays[f"{name}_nonfinite"] = np.asarray(res.n_nonfinite())
+        if outputs.states:  # the whole result, which jdpim.load reads back with the scene and the method
+            files.append(f"{stem}_{name}.npz")
+            res.save(out / files[-1], scene=scene, method=methods[name])
     if sf.reliability is not None:
         fp_arrays, fp_tables, fp_wall = first_passage(sf, progress=progress, log=log)
         arrays |= fp_arrays

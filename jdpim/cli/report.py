@@ -12,12 +12,12 @@ from __future__ import annotations
 import csv
 import json
 import pathlib
-import platform
 import time
 
 import numpy as np
 
 from .. import figures, metrics
+from .._io import versions as versions  # the metadata of every output, saved results' too
 
 NAME = {**figures.NAME, "reference": "path integration"}  # legends and panel titles
 
@@ -25,22 +25,6 @@ NAME = {**figures.NAME, "reference": "path integration"}  # legends and panel ti
 def logger(quiet: bool):
     """The progress log: ``print`` (flushed), or nothing with ``--quiet``."""
     return (lambda s: None) if quiet else (lambda s: print(s, flush=True))
-
-
-def versions() -> dict:
-    """Versions of jdpim, JAX, NumPy and Python, and the JAX backend (for the metadata of every output)."""
-    import jax
-
-    import jdpim
-
-    return {
-        "jdpim": jdpim.__version__,
-        "jax": jax.__version__,
-        "numpy": np.__version__,
-        "python": platform.python_version(),
-        "backend": jax.default_backend(),
-        "devices": len(jax.devices()),
-    }
 
 
 def timed(fn, log, what: str):

@@ -16,6 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._io import Labelled
 from .._pytree import check_int, concrete, pytree_dataclass, real_array, static_field
 from .._scene import Scene, parameter_value, saved_index, static_times
 from ..methods._base import AbstractMethod
@@ -46,7 +47,7 @@ class FirstPassageQuery:
 
 
 @pytree_dataclass
-class FirstPassage:
+class FirstPassage(Labelled):
     r"""First-passage probabilities ``P(max_{s <= t} q(s) > level)``.
 
     Attributes:

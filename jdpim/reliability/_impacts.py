@@ -17,6 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._integrate import Impacts
+from .._io import Labelled
 from .._pytree import check_grid, pytree_dataclass, static_field
 from .._scene import Scene, static_times
 from ..methods._ad_guard import INDICATOR, watch
@@ -24,7 +25,7 @@ from ..methods._paths import SamplingMethod, run_paths
 
 
 @pytree_dataclass
-class ImpactStatistics:
+class ImpactStatistics(Labelled):
     """Impact statistics at the saved times.
 
     Attributes:

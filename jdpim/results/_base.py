@@ -5,12 +5,13 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 
+from .._io import Labelled
 from .._scene import saved_index
 
 COORDINATES = ("x", "v")  # the state of a one-degree-of-freedom model: displacement, velocity
 
 
-class AbstractResult:
+class AbstractResult(Labelled):
     """The interface every method's result shares (``jdpim.Result``, ``jdpim.GridResult``).
 
     ``times`` (a tuple of saved times, s; ``(inf,)`` for a stationary density) and ``coordinates`` (the
@@ -21,7 +22,8 @@ class AbstractResult:
     there is one (a single saved time, or a stationary density).
 
     Methods: ``pdf(var, grid, t=None)``, ``joint_pdf(vars, grids, t=None)``, ``pdf_error(var, grid, t=None)``,
-    ``moment(var, order, t=None)``, ``mass(t=None)`` and ``n_nonfinite()``.
+    ``moment(var, order, t=None)``, ``mass(t=None)``, ``n_nonfinite()``, ``save(path, scene=, method=)``
+    (read back by ``jdpim.load``) and ``to_xarray()``.
     """
 
     times: tuple

@@ -30,6 +30,7 @@ import jax
 import jax.numpy as jnp
 
 from .._integrate import Sums
+from .._io import Persistent
 from .._models import AbstractOscillator
 from .._pytree import check_real, concrete, real_array
 from .._scene import Scene, parameter_names, parameter_value, with_parameters
@@ -69,7 +70,7 @@ def _nominal(scene: Scene, name: str):
 
 @jax.tree_util.register_pytree_node_class
 @dataclasses.dataclass(frozen=True, eq=False)
-class Sensitivity(Mapping):
+class Sensitivity(Persistent, Mapping):
     """Derivatives ``name -> dp/dtheta`` on the grid (a read-only mapping), with standard errors.
 
     Attributes:
