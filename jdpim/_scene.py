@@ -11,6 +11,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._constraints import clearances
 from ._distributions import ANGLE, Distribution, LogNormal, Normal, Range, TruncatedNormal, Uniform
 from ._excitation import GaussianNodes, SpectralGrid, SpectralRepresentation
 from ._integrate import ImpactRule, Substeps
@@ -27,7 +28,11 @@ NOISE_PARAMETERS = ("D",)  # parameters of the excitation, beside the model's
 _GRID_TOL = 1e-6
 # share of RK4's stability bound above which dt is warned about (there an undamped mode loses 8 % of its energy
 # per step to RK4 itself)
-STEP_WARN = 0.5  # relative tolerance (in steps) for times that must lie on the time grid
+STEP_WARN = 0.5
+# a clearance narrower than this many times the noise's motion across it within one step is refused: at dt = 0.01,
+# D = 0.03 the impact damper keeps every saved state inside clearances of 1.5e-4 (2.1 times) and wider, not 1e-4
+# (1.4 times; docs/mdof.md)
+CLEARANCE_STEPS = 2.0  # relative tolerance (in steps) for times that must lie on the time grid
 
 
 def _n_constraints(model) -> int:
@@ -133,6 +138,7 @@ class Scene:
                 f"has {self.noise.n_sources}"
             )
         self._check_step()
+        self._check_clearances()
         if isinstance(self.model, AbstractOscillator):
             check_real("v0", self.v0, scalar=True)
             if self.x0 is not None:
@@ -165,6 +171,31 @@ class Scene:
             StepSizeWarning,
             stacklevel=4,
         )
+
+    def _check_clearances(self) -> None:
+        """Each clearance between opposed constraints against what one step resolves: ``ValueError`` where it is
+        narrower than ``CLEARANCE_STEPS`` times the motion the noise gives it inside one step,
+        ``sqrt(2 u^T D u / 3) dt^(3/2)`` (``u = n . M^-1 B``: the noise's accelerations along the normal; the RMS
+        of the displacement the noise of one step makes by its end)."""
+        cons = self.model.stacked_constraints() if isinstance(self.model, MDOFOscillator) else None
+        d, gains = concrete(self.noise.D), concrete(getattr(self.model, "gains", None))
+        position = None if cons is None else concrete(cons.position)
+        if cons is None or d is None or gains is None or position is None:
+            return
+        d = np.atleast_2d(d)
+        for i, j, width in clearances(np.asarray(cons.normal), position):
+            if width <= 0:
+                raise ValueError(f"constraints[{i}] and constraints[{j}] leave no room between them (width {width:g})")
+            u = cons.normal[i] @ self.model.inverse_mass() @ gains
+            rate = np.sqrt(2.0 * float(u @ d @ u) / 3.0)  # per dt^(3/2)
+            if width < CLEARANCE_STEPS * rate * self.dt**1.5:
+                need = (width / (CLEARANCE_STEPS * rate)) ** (2.0 / 3.0)
+                raise ValueError(
+                    f"the clearance between constraints[{i}] and [{j}] ({width:.3g} wide) is below what dt={self.dt!r} "
+                    f"resolves: the noise moves across it by {rate * self.dt**1.5:.3g} within one step (sqrt(2 D / 3) "
+                    f"|n . M^-1 B| dt^1.5), and a step resolves clearances over {CLEARANCE_STEPS:g} times that; "
+                    f"use dt <= {need:.3g}"
+                )
 
     @property
     def held_constraints(self) -> tuple[bool, ...]:

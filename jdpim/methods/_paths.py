@@ -83,7 +83,7 @@ def without_diverged(scene: Scene, states):
     scale = divergence_scale(scene)
     if scale is None:
         return states
-    beyond = jnp.any(jnp.abs(states) > jnp.asarray(DIVERGED * scale, states.dtype), axis=-1)
+    beyond = jnp.any(jnp.abs(states) > jnp.asarray(DIVERGED * scale, states.dtype)[None, None], axis=-1)
     beyond = jnp.cumsum(beyond, axis=1) > 0
     return jnp.where(beyond[..., None], jnp.nan, states)
 
