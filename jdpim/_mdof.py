@@ -16,7 +16,7 @@ import numpy as np
 
 from ._constraints import Constraints, dot
 from ._distributions import Range
-from ._models import RESTITUTION, AbstractSystem
+from ._models import GROWING, RESTITUTION, AbstractSystem
 from ._pytree import array_leaf, check_real, concrete, plain, pytree_dataclass, static_field
 
 
@@ -175,7 +175,7 @@ class MDOFOscillator(AbstractSystem):
         if self.force is None:
             lam = np.linalg.eigvals(self.linearised())
             worst = lam[np.argmax(lam.real)]
-            if worst.real > 1e-9 * max(1.0, float(np.abs(lam).max())):
+            if worst.real > GROWING * max(1.0, float(np.abs(lam).max())):
                 raise ValueError(
                     f"damping and stiffness let a mode grow (eigenvalue {worst:.4g} of M q'' + C q' + K q = 0 has "
                     "a positive real part): make damping and stiffness positive semi-definite"

@@ -22,6 +22,7 @@ from ._pytree import check_real, concrete, pytree_dataclass, static_field
 # the values each parameter may take: fixed values are checked against these where a model is built, the laws of
 # random parameters (``Scene(random=...)``) where a scene is
 RESTITUTION = Range(0.0, 1.0)
+GROWING = 1e-6  # a mode grows where Re(lambda) > GROWING |lambda| (below: the rounding of a neutral one's eigenvalue)
 RANGES = {"alpha": Range(0.0), "gamma": Range(0.0), "omega": Range(0.0, low_open=True), "r": RESTITUTION}
 
 
@@ -265,8 +266,9 @@ def rk4_step_limit(eigenvalues) -> tuple[float, complex]:
     best, mode = np.inf, 0j
     for lam in np.asarray(eigenvalues, complex):
         size = abs(lam)
-        if size == 0 or lam.real > 1e-9 * size:
+        if size == 0 or lam.real > GROWING * size:
             continue
+        lam = complex(min(lam.real, 0.0), lam.imag)  # a neutral mode's rounding (double zeros) is no growth
         s = np.linspace(0.0, 3.0, 3001)[1:]  # the region reaches at most 2.83 from the origin off the real axis
         bad = grows(s * lam / size)
         if not bad.any():
