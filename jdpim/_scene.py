@@ -48,7 +48,9 @@ class Scene:
         model: the oscillator (physical parameters are traced leaves).
         noise: the white-noise excitation; its number of sources must match the model's gains.
         t_end: end time in s (> 0, a multiple of ``dt``).
-        dt: RK4 time step in s (0 < dt < t_end).
+        dt: RK4 time step in s (0 < dt < t_end), within RK4's stability bound for the fastest mode of the model
+            linearised at rest (filters included); above half of it a ``jdpim.StepSizeWarning``. A clearance
+            between opposed constraints must be at least twice the noise's motion across it within one step.
         save_at: times in s at which the state is kept (strictly increasing, in [0, t_end], on the
             time grid). Only these are stored. Default: ``(t_end,)`` (which :meth:`replace` moves with ``t_end``).
         x0, v0: initial displacement and velocity (traced); ``x0=None`` starts at the barrier (or 0).
@@ -177,16 +179,17 @@ class Scene:
         narrower than ``CLEARANCE_STEPS`` times the motion the noise gives it inside one step,
         ``sqrt(2 u^T D u / 3) dt^(3/2)`` (``u = n . M^-1 B``: the noise's accelerations along the normal; the RMS
         of the displacement the noise of one step makes by its end)."""
-        cons = self.model.stacked_constraints() if isinstance(self.model, MDOFOscillator) else None
-        d, gains = concrete(self.noise.D), concrete(getattr(self.model, "gains", None))
-        position = None if cons is None else concrete(cons.position)
-        if cons is None or d is None or gains is None or position is None:
+        if not isinstance(self.model, MDOFOscillator) or len(self.model.constraints) < 2:
             return
-        d = np.atleast_2d(d)
-        for i, j, width in clearances(np.asarray(cons.normal), position):
+        d, gains = concrete(self.noise.D), concrete(self.model.gains)
+        position = [concrete(c.position) for c in self.model.constraints]
+        if d is None or gains is None or any(b is None for b in position):
+            return  # traced or placeholder leaves (jit, lower): checked where the scene is built
+        d, normal = np.atleast_2d(d), np.array([c.normal for c in self.model.constraints])
+        for i, j, width in clearances(normal, np.array(position, float)):
             if width <= 0:
                 raise ValueError(f"constraints[{i}] and constraints[{j}] leave no room between them (width {width:g})")
-            u = cons.normal[i] @ self.model.inverse_mass() @ gains
+            u = normal[i] @ self.model.inverse_mass() @ gains
             rate = np.sqrt(2.0 * float(u @ d @ u) / 3.0)  # per dt^(3/2)
             if width < CLEARANCE_STEPS * rate * self.dt**1.5:
                 need = (width / (CLEARANCE_STEPS * rate)) ** (2.0 / 3.0)
