@@ -269,7 +269,7 @@ def rk4_step_limit(eigenvalues) -> tuple[float, complex]:
         if size == 0 or lam.real > GROWING * size:
             continue
         lam = complex(min(lam.real, 0.0), lam.imag)  # a neutral mode's rounding (double zeros) is no growth
-        s = np.linspace(0.0, 3.0, 3001)[1:]  # the region reaches at most 2.83 from the origin off the real axis
+        s = np.linspace(0.0, 4.0, 4001)[1:]  # |lambda| h along the mode's ray: the region lies within 3 of 0
         bad = grows(s * lam / size)
         if not bad.any():
             continue
