@@ -91,7 +91,7 @@ REFUSED = {
         lambda: scene(jdpim.impact_damper(clearance=1e-5), dt=0.01),
         ValueError,
         r"the clearance between constraints\[0\] and \[1\] \(2e-05 wide\) is below what dt=0.01 resolves: .* "
-        r"use dt <= 0.00171",
+        r"use dt <= 0.00108",
     ),
     "clearance-1e-6": (
         lambda: scene(jdpim.impact_damper(clearance=1e-6), dt=0.01),
