@@ -243,6 +243,8 @@ class Range:
         b = hi if self.high is None else min(hi, self.high)
         if isinstance(dist, Uniform) and b > a and (a, b) != (lo, hi):
             hint = f"jdpim.Uniform({a:g}, {b:g})"
+        elif self.low_open and self.low == 0.0 and self.high is None:
+            hint = f"a positive law, e.g. jdpim.LogNormal({math.log(abs(dist.mean) or 1.0):.3g}, 0.2) (median e^mu)"
         else:
             loc, scale = (dist.loc, dist.scale) if isinstance(dist, TruncatedNormal) else (dist.mean, dist.std)
             ends = [f"{key}={end:g}" for key, end in (("low", self.low), ("high", self.high)) if end is not None]
