@@ -16,7 +16,7 @@ import numpy as np
 
 from ._constraints import Constraints, dot
 from ._distributions import Range
-from ._models import GROWING, RESTITUTION, AbstractSystem
+from ._models import RESTITUTION, AbstractSystem
 from ._pytree import array_leaf, check_real, concrete, plain, pytree_dataclass, static_field
 
 
@@ -158,34 +158,24 @@ class MDOFOscillator(AbstractSystem):
             object.__setattr__(self, "start", tuple(float(a) for a in start))
 
     def _check_dissipative(self) -> None:
-        """A symmetric ``C`` must be positive semi-definite (it dissipates), and without a ``force`` no mode of
-        ``M q'' + C q' + K q = 0`` may grow (the matrices of a filter, :mod:`jdpim.filters`, are not symmetric:
-        the structure feels the filter, not the other way round, so only the modes are checked there)."""
-        mats = {name: concrete(getattr(self, name)) for name in ("damping", "stiffness")}
-        if any(a is None and getattr(self, name) is not None for name, a in mats.items()):
-            return  # traced: checked where the model is built
-        c = mats["damping"]
-        if c is not None and np.allclose(c, c.T, rtol=1e-12, atol=0.0):
-            low = float(np.linalg.eigvalsh(c).min())
-            if low < -1e-12 * max(1.0, float(np.abs(c).max())):
-                raise ValueError(
-                    f"damping must be positive semi-definite (it dissipates energy); its smallest eigenvalue is "
-                    f"{low:.4g}: {plain(c)!r}"
-                )
-        if self.force is None:
-            lam = np.linalg.eigvals(self.linearised())
-            worst = lam[np.argmax(lam.real)]
-            if worst.real > GROWING * max(1.0, float(np.abs(lam).max())):
-                raise ValueError(
-                    f"damping and stiffness let a mode grow (eigenvalue {worst:.4g} of M q'' + C q' + K q = 0 has "
-                    "a positive real part): make damping and stiffness positive semi-definite"
-                )
+        """A symmetric damping matrix must be positive semi-definite: it dissipates, as ``alpha >= 0`` for one
+        degree of freedom. Not checked: a filter's damping (:mod:`jdpim.filters`), not symmetric because the
+        structure feels the filter and not the other way round; and the stiffness, whose negative directions are
+        unstable rest states that constraints or a ``force`` may confine (an inverted pendulum between stops)."""
+        c = concrete(self.damping)
+        if c is None or not np.allclose(c, c.T, rtol=1e-12, atol=0.0):
+            return  # traced (checked where the model is built with numbers) or not symmetric
+        low = float(np.linalg.eigvalsh(c).min())
+        if low < -1e-12 * max(1.0, float(np.abs(c).max())):
+            raise ValueError(
+                f"damping must be positive semi-definite (it dissipates energy); its smallest eigenvalue is "
+                f"{low:.4g}: {plain(c)!r}"
+            )
 
     def parameter_range(self, name: str) -> Range:
-        """A diagonal entry of ``damping`` (of ``stiffness`` without a ``force``) is >= 0, a restitution in
-        [0, 1]; other entries any real value."""
-        if (m := MATRIX_ENTRY.match(name)) and m[2] == m[3] and m[1] != "gains":
-            return Range(0.0) if m[1] == "damping" or self.force is None else Range()
+        """A diagonal entry of ``damping`` is >= 0, a restitution in [0, 1]; other entries any real value."""
+        if (m := MATRIX_ENTRY.match(name)) and m[1] == "damping" and m[2] == m[3]:
+            return Range(0.0)
         m = CONSTRAINT.match(name)
         return RESTITUTION if m and m[2] == "r" else Range()
 

@@ -69,10 +69,10 @@ REFUSED = {
         ValueError,
         r"damping must be positive semi-definite \(it dissipates energy\); its smallest eigenvalue is -0.5",
     ),
-    "mdof-growing-mode": (
-        lambda: jdpim.MDOFOscillator(mass=[[1.0]], gains=[[1.0]], damping=[[0.1]], stiffness=[[-1.0]]),
+    "mdof-indefinite-damping": (
+        lambda: jdpim.MDOFOscillator(mass=np.eye(2), gains=[[1.0], [0.0]], damping=[[0.1, 0.5], [0.5, 0.1]]),
         ValueError,
-        r"damping and stiffness let a mode grow \(eigenvalue 0.95",
+        r"damping must be positive semi-definite \(it dissipates energy\); its smallest eigenvalue is -0.4",
     ),
     # dt beyond RK4's stability bound (|1 + z + z^2/2 + z^3/6 + z^4/24| <= 1, z = lambda dt)
     "dt-kanai-tajimi-filter": (
