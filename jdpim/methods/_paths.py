@@ -54,9 +54,10 @@ def divergence_scale(scene: Scene) -> np.ndarray | None:
     """``(2 n,)``: how far a path's coordinates and velocities can plausibly reach by ``t_end``; ``None`` where the
     scene's parameters are traced.
 
-    The velocity scale ``V = |v0| + |J| |x0| + |B| sqrt(2 |D| t_end)`` adds the start (``J`` the Jacobian of the
-    model linearised at rest, infinity norms) and the free growth of the noise's impulses (``B`` the accelerations
-    per unit noise at rest); coordinates reach ``|x0| + V t_end``. Random starts count with their mean plus ten
+    The velocity scale ``V = |v0| + |J| |x0| + |B| sqrt(2 |D| t_end) + |a0| t_end`` adds the start (``J`` the
+    Jacobian of the model linearised at rest, infinity norms), the free growth of the noise's impulses (``B`` the
+    accelerations per unit noise at rest) and of a constant force (``a0`` the acceleration at rest without noise);
+    coordinates reach ``|x0| + V t_end``. Random starts count with their mean plus ten
     standard deviations."""
     model, jac, d = scene.model, scene.model.linearised(), concrete(scene.noise.D)
     x0, v0 = (concrete(a) for a in scene.initial_state())
@@ -67,12 +68,15 @@ def divergence_scale(scene: Scene) -> np.ndarray | None:
         if name in start:
             start[name] += abs(dist.mean) + 10.0 * dist.std
     q = jnp.asarray(model.rest(), scene.float_dtype)
-    gains = jax.jacfwd(lambda xi: model.state_acceleration(q, jnp.zeros_like(q), xi))(
-        jnp.zeros((scene.n_sources,), q.dtype)
-    )
+    xi = jnp.zeros((scene.n_sources,), q.dtype)
+
+    def acceleration(xi):
+        return model.state_acceleration(q, jnp.zeros_like(q), xi)
+
+    gains, drift = np.asarray(jax.jacfwd(acceleration)(xi)), np.asarray(acceleration(xi))
     norm = np.max(np.sum(np.abs(jac), axis=1))
-    kick = np.max(np.sum(np.abs(np.asarray(gains)), axis=1)) * np.sqrt(2.0 * np.max(np.abs(d)) * scene.t_end)
-    v = start["v0"] + norm * start["x0"] + kick
+    kick = np.max(np.sum(np.abs(gains), axis=1)) * np.sqrt(2.0 * np.max(np.abs(d)) * scene.t_end)
+    v = start["v0"] + norm * start["x0"] + kick + np.max(np.abs(drift)) * scene.t_end
     n = model.dimension
     return np.concatenate([np.full(n, start["x0"] + v * scene.t_end), np.full(n, v)])
 
