@@ -247,6 +247,9 @@ class Range:
             hint = f"a positive law, e.g. jdpim.LogNormal({math.log(abs(dist.mean) or 1.0):.3g}, 0.2) (median e^mu)"
         else:
             loc, scale = (dist.loc, dist.scale) if isinstance(dist, TruncatedNormal) else (dist.mean, dist.std)
+            loc = min(
+                max(loc, -math.inf if self.low is None else self.low), math.inf if self.high is None else self.high
+            )
             ends = [f"{key}={end:g}" for key, end in (("low", self.low), ("high", self.high)) if end is not None]
             hint = f"a truncated law, e.g. jdpim.TruncatedNormal({loc:g}, {scale:g}, {', '.join(ends)})"
             if self.low == 0.0 and self.high is None:
