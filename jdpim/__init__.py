@@ -10,7 +10,9 @@ from . import metrics as metrics
 from . import reliability as reliability
 from . import systems as systems
 from ._cpu import use_cpu_cores as use_cpu_cores
+from ._distributions import LogNormal as LogNormal
 from ._distributions import Normal as Normal
+from ._distributions import TruncatedNormal as TruncatedNormal
 from ._distributions import Uniform as Uniform
 from ._excitation import GaussianNodes as GaussianNodes
 from ._excitation import SpectralRepresentation as SpectralRepresentation
@@ -37,6 +39,7 @@ from ._tuning import loo_log_likelihood as loo_log_likelihood
 from ._tuning import refine_points as refine_points
 from ._tuning import soft_voronoi_probabilities as soft_voronoi_probabilities
 from ._tuning import tune_bandwidth as tune_bandwidth
+from ._warnings import StepSizeWarning as StepSizeWarning
 from .filters import first_order_filter as first_order_filter
 from .filters import harmonic as harmonic
 from .filters import kanai_tajimi as kanai_tajimi

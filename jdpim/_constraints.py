@@ -68,6 +68,21 @@ def geometry(constraints: Constraints, dtype) -> Geometry:
     return Geometry(n, b, r, push, onto, unit, keep, flip)
 
 
+def clearances(normal, position) -> list[tuple[int, int, float]]:
+    """``(i, j, width)`` for every pair of opposed constraints (``n_j = -n_i / lambda``, ``lambda > 0``): between
+    them ``b_i <= n_i . q <= -lambda b_j``, a slab ``width = -(b_i + lambda b_j)`` wide in ``n_i . q`` (a
+    clearance, a backlash: ``2 c`` for ``|x2 - x1| <= c``).
+
+    ``normal`` ``(J, d)`` and ``position`` ``(J,)`` are NumPy arrays (concrete)."""
+    size = np.linalg.norm(normal, axis=1)
+    unit = normal / size[:, None]
+    out = []
+    for i, j in zip(*np.triu_indices(len(unit), k=1), strict=True):
+        if np.allclose(unit[i], -unit[j], rtol=0.0, atol=1e-12):
+            out.append((int(i), int(j), float(-(position[i] + size[i] / size[j] * position[j]))))
+    return out
+
+
 def values(geo: Geometry, q):
     """``c_j(q) = n_j . q - b_j`` for every constraint, ``(J,)``, of one path's coordinates ``q`` ``(d,)``."""
     return dot(geo.normal, q) - geo.position

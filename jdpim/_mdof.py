@@ -7,6 +7,7 @@ through the generalised Newton impact law (``jdpim._constraints``): a mass again
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable
 from typing import Any
 
@@ -14,7 +15,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._constraints import Constraints, dot
-from ._models import AbstractSystem
+from ._distributions import Range
+from ._models import RESTITUTION, AbstractSystem
 from ._pytree import array_leaf, check_real, concrete, plain, pytree_dataclass, static_field
 
 
@@ -48,7 +50,21 @@ class Barrier:
             raise ValueError(f"normal must not be zero, got {plain(self.normal)!r}")
         object.__setattr__(self, "normal", tuple(float(a) for a in arr))
         check_real("position", self.position, scalar=True)
-        check_real("r", self.r, low=0.0, high=1.0, scalar=True)
+        RESTITUTION.check("r", self.r)
+
+
+MATRIX_ENTRY = re.compile(r"^(damping|stiffness|gains)\[(\d+),\s*(\d+)\]$")  # a parameter's name: "damping[0,1]"
+CONSTRAINT = re.compile(r"^constraints\[(\d+)\]\.(r|position)$")  # "constraints[0].r"
+
+
+def linear_state_matrix(mass, damping, stiffness) -> np.ndarray:
+    """``[[0, I], [-M^-1 K, -M^-1 C]]``, ``(2n, 2n)``: the first-order form of ``M q'' + C q' + K q = 0``
+    (``None`` for an absent ``C`` or ``K``)."""
+    n = mass.shape[0]
+    m_inv = np.linalg.inv(mass)
+    k = np.zeros((n, n)) if stiffness is None else np.asarray(stiffness, float)
+    c = np.zeros((n, n)) if damping is None else np.asarray(damping, float)
+    return np.block([[np.zeros((n, n)), np.eye(n)], [-m_inv @ k, -m_inv @ c]])
 
 
 def _matrix(name: str, value, n: int, square: bool = True) -> None:
@@ -119,6 +135,7 @@ class MDOFOscillator(AbstractSystem):
             if getattr(self, name) is not None:
                 object.__setattr__(self, name, array_leaf(name, getattr(self, name)))
                 _matrix(name, getattr(self, name), n, square=name != "gains")
+        self._check_dissipative()
         constraints = self.constraints
         if not isinstance(constraints, (tuple, list)) or not all(isinstance(c, Barrier) for c in constraints):
             raise TypeError(f"constraints must be a tuple of jdpim.Barrier, got {constraints!r}")
@@ -139,6 +156,38 @@ class MDOFOscillator(AbstractSystem):
                 raise ValueError(f"start must be {n} numbers (one per coordinate), got {self.start!r}")
             check_real("start", start)
             object.__setattr__(self, "start", tuple(float(a) for a in start))
+
+    def _check_dissipative(self) -> None:
+        """A symmetric damping matrix must be positive semi-definite: it dissipates, as ``alpha >= 0`` for one
+        degree of freedom. Not checked: a filter's damping (:mod:`jdpim.filters`), not symmetric because the
+        structure feels the filter and not the other way round; and the stiffness, whose negative directions are
+        unstable rest states that constraints or a ``force`` may confine (an inverted pendulum between stops)."""
+        c = concrete(self.damping)
+        if c is None or not np.allclose(c, c.T, rtol=1e-12, atol=0.0):
+            return  # traced (checked where the model is built with numbers) or not symmetric
+        low = float(np.linalg.eigvalsh(c).min())
+        if low < -1e-12 * max(1.0, float(np.abs(c).max())):
+            raise ValueError(
+                f"damping must be positive semi-definite (it dissipates energy); its smallest eigenvalue is "
+                f"{low:.4g}: {plain(c)!r}"
+            )
+
+    def parameter_range(self, name: str) -> Range:
+        """A diagonal entry of ``damping`` is >= 0, a restitution in [0, 1]; other entries any real value."""
+        if (m := MATRIX_ENTRY.match(name)) and m[1] == "damping" and m[2] == m[3]:
+            return Range(0.0)
+        m = CONSTRAINT.match(name)
+        return RESTITUTION if m and m[2] == "r" else Range()
+
+    def linearised(self) -> np.ndarray | None:
+        """``[[0, I], [-M^-1 K, -M^-1 C]]`` without a ``force`` (filters included: they are coordinates); with one,
+        the Jacobian at rest (:meth:`jdpim.AbstractSystem.linearised`)."""
+        if self.force is not None:
+            return super().linearised()
+        mats = [concrete(getattr(self, name)) for name in ("damping", "stiffness")]
+        if any(a is None and b is not None for a, b in zip(mats, (self.damping, self.stiffness), strict=True)):
+            return None
+        return linear_state_matrix(np.asarray(self.mass), *mats)
 
     @property
     def dimension(self) -> int:

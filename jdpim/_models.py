@@ -16,7 +16,15 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._constraints import Constraints
-from ._pytree import check_real, pytree_dataclass, static_field
+from ._distributions import Range
+from ._pytree import check_real, concrete, pytree_dataclass, static_field
+
+# the values each parameter may take: fixed values are checked against these where a model is built, the laws of
+# random parameters (``Scene(random=...)``) where a scene is
+RESTITUTION = Range(0.0, 1.0)
+RK4_RADIUS = 2.6  # RK4's stability region holds the half disc |z| <= 2.615 of the left half plane (rk4_step_limit)
+GROWING = 1e-6  # a mode grows where Re(lambda) > GROWING |lambda| (below: the rounding of a neutral one's eigenvalue)
+RANGES = {"alpha": Range(0.0), "gamma": Range(0.0), "omega": Range(0.0, low_open=True), "r": RESTITUTION}
 
 
 class AbstractSystem:
@@ -35,6 +43,25 @@ class AbstractSystem:
     def replace(self, **changes):
         """A copy with fields replaced, e.g. ``model.replace(alpha=0.05)``."""
         return dataclasses.replace(self, **changes)
+
+    def parameter_range(self, name: str) -> Range:
+        """The values the parameter ``name`` may take (what fixed values and random laws are checked against)."""
+        return RANGES.get(name, Range())
+
+    def rest(self) -> np.ndarray:
+        """The coordinates the model is linearised at (:meth:`linearised`): zeros, ``(n,)``."""
+        return np.zeros(self.dimension)
+
+    def linearised(self) -> np.ndarray | None:
+        """``(2 n, 2 n)``: the Jacobian of ``(q, v) -> (v, q'')`` without noise at ``(rest, 0)``; ``None`` where
+        the model's parameters are traced (then the step is checked where the scene is built with numbers)."""
+        if any(concrete(leaf) is None for leaf in jax.tree_util.tree_leaves(self)):
+            return None
+        n = self.dimension
+        q = jnp.asarray(self.rest(), jnp.zeros(()).dtype)
+        xi = jnp.zeros((n_sources_of(self),), q.dtype)
+        dq, dv = jax.jacfwd(lambda q, v: self.state_acceleration(q, v, xi), argnums=(0, 1))(q, jnp.zeros_like(q))
+        return np.block([[np.zeros((n, n)), np.eye(n)], [np.asarray(dq), np.asarray(dv)]])
 
 
 class AbstractOscillator(AbstractSystem):
@@ -66,6 +93,11 @@ class AbstractOscillator(AbstractSystem):
         """Names of the state's entries, in order: displacement ``"x"`` and velocity ``"v"``."""
         return ("x", "v")
 
+    def rest(self) -> np.ndarray:
+        """``x = 0``, or the barrier where it lies above 0."""
+        barrier = concrete(self.barrier) if self.has_barrier else None
+        return np.array([0.0 if barrier is None else max(0.0, float(barrier))])
+
     def bounds(self):
         """The barrier (where density kernels of ``"x"`` are reflected), or ``None``."""
         return self.barrier if self.has_barrier else None
@@ -92,7 +124,7 @@ class AbstractOscillator(AbstractSystem):
 
 
 def _check_impact(r, barrier) -> None:
-    check_real("r", r, low=0.0, high=1.0, scalar=True)
+    RESTITUTION.check("r", r)
     if barrier is not None:
         check_real("barrier", barrier, scalar=True)
 
@@ -125,14 +157,20 @@ class VibroImpactOscillator(AbstractOscillator):
     omega: Any = 1.0
 
     def __post_init__(self):
-        for name in ("alpha", "gamma"):
-            check_real(name, getattr(self, name), low=0.0, scalar=True)
-        check_real("omega", self.omega, low=0.0, low_open=True, scalar=True)
+        for name in ("alpha", "gamma", "omega"):
+            RANGES[name].check(name, getattr(self, name))
         _check_impact(self.r, self.barrier)
 
     @property
     def may_be_stiff(self) -> bool:
         return self.gamma is not None  # only cubic damping grows with the state
+
+    def linearised(self) -> np.ndarray | None:
+        """``[[0, 1], [-omega^2, -alpha]]`` (the cubic damping has no linear part)."""
+        omega, alpha = concrete(self.omega), 0.0 if self.alpha is None else concrete(self.alpha)
+        if omega is None or alpha is None:
+            return None
+        return np.array([[0.0, 1.0], [-(float(omega) ** 2), -float(alpha)]])
 
     def restoring(self, x):
         return self.omega**2 * x
@@ -190,10 +228,20 @@ class Oscillator(AbstractOscillator):
         if isinstance(self.n_sources, bool) or not isinstance(self.n_sources, int) or self.n_sources < 1:
             raise ValueError(f"n_sources must be an integer >= 1, got {self.n_sources!r}")
         _check_impact(self.r, self.barrier)
+        if all(concrete(leaf) is not None for leaf in jax.tree_util.tree_leaves(self.params)):
+            x = jnp.zeros(())  # one path's scalars (placeholders and tracers are checked where built with numbers)
+            for name, fn in (("g", lambda: self.restoring(x)), ("f", lambda: self.damping(x, x))):
+                shape = jax.eval_shape(fn).shape
+                if shape != ():
+                    raise ValueError(f"{name} must return one number for one path's scalars, got shape {list(shape)}")
 
     @property
     def may_be_stiff(self) -> bool:
         return self.f is not None or self.g is not None
+
+    def parameter_range(self, name: str) -> Range:
+        """``r`` in [0, 1]; the keys of ``params`` are the user's (any real value)."""
+        return RESTITUTION if name == "r" else Range()
 
     def restoring(self, x):
         return jnp.zeros_like(x) if self.g is None else self.g(x, self.params)
@@ -205,6 +253,36 @@ class Oscillator(AbstractOscillator):
         if self.h is None:
             return jnp.ones((self.n_sources,), dtype=jnp.result_type(v))
         return jnp.reshape(self.h(x, v, self.params), (self.n_sources,))
+
+
+def rk4_step_limit(eigenvalues) -> tuple[float, complex]:
+    """The largest step ``h`` with ``|R(lambda h')| <= 1`` for ``h' <= h`` and every decaying or neutral mode
+    ``lambda`` (RK4's ``R(z) = 1 + z + z^2/2 + z^3/6 + z^4/24``; 2.785 / |lambda| on the negative real axis,
+    2 sqrt(2) / |lambda| on the imaginary one), and the mode that sets it; ``(inf, 0)`` where no mode limits the
+    step. Growing modes (``Re lambda > 0``: an unstable rest state, e.g. between stops) set no bound."""
+
+    def grows(z):
+        return np.abs(1 + z + z**2 / 2 + z**3 / 6 + z**4 / 24) > 1.0 + 1e-12
+
+    lam = np.asarray(eigenvalues, complex).ravel()
+    size = np.abs(lam)
+    lam = lam[(size > 0) & (lam.real <= GROWING * size)]
+    if lam.size == 0:
+        return np.inf, 0j
+    lam = np.minimum(lam.real, 0.0) + 1j * lam.imag  # a neutral mode's rounding (double zeros) is no growth
+    size = np.abs(lam)
+    ray = lam / size
+    s = np.linspace(0.0, 4.0, 401)  # |lambda| h along each mode's ray: the region lies within 2.96 of 0
+    bad = grows(s[1:, None] * ray)
+    first = np.argmax(bad, axis=0)  # the first grid point beyond the region, then bisection
+    lo, hi = s[first], s[first + 1]
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        out = grows(mid * ray)
+        lo, hi = np.where(out, lo, mid), np.where(out, mid, hi)
+    limit = np.where(bad.any(axis=0), lo / size, np.inf)
+    k = int(np.argmin(limit))
+    return (float(limit[k]), complex(lam[k])) if np.isfinite(limit[k]) else (np.inf, 0j)
 
 
 def n_sources_of(model: AbstractSystem) -> int:

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
-import re
+import warnings
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -11,18 +11,27 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._distributions import ANGLE, Normal, Uniform
+from ._constraints import clearances
+from ._distributions import ANGLE, Distribution, LogNormal, Normal, Range, TruncatedNormal, Uniform
 from ._excitation import GaussianNodes, SpectralGrid, SpectralRepresentation
 from ._integrate import ImpactRule, Substeps
-from ._mdof import MDOFOscillator
-from ._models import AbstractOscillator, AbstractSystem, Oscillator, n_sources_of
+from ._mdof import CONSTRAINT, MATRIX_ENTRY, MDOFOscillator
+from ._models import RK4_RADIUS, AbstractOscillator, AbstractSystem, Oscillator, n_sources_of, rk4_step_limit
 from ._noise import WhiteNoise
 from ._pytree import array_leaf, check_real, concrete, pytree_dataclass, real_array, static_field
+from ._warnings import StepSizeWarning
+from .filters import check_harmonic_start
 
 # each sampling method's excitation where the scene leaves it to the method (excitation=None)
 DEFAULT_EXCITATION = {"dpim": SpectralRepresentation, "monte_carlo": GaussianNodes}
 NOISE_PARAMETERS = ("D",)  # parameters of the excitation, beside the model's
 _GRID_TOL = 1e-6  # relative tolerance (in steps) for times that must lie on the time grid
+# share of RK4's stability bound above which dt is warned about (there an undamped mode loses 8 % of its energy
+# per step to RK4 itself)
+STEP_WARN = 0.5
+# a clearance narrower than this many times the noise's motion across it within one step is refused (docs/mdof.md,
+# "Clearances the step resolves": at 1.4 and 2.5 times saved states lie outside, at 4.2 times none)
+CLEARANCE_STEPS = 4.0
 
 
 def _n_constraints(model) -> int:
@@ -38,13 +47,17 @@ class Scene:
         model: the oscillator (physical parameters are traced leaves).
         noise: the white-noise excitation; its number of sources must match the model's gains.
         t_end: end time in s (> 0, a multiple of ``dt``).
-        dt: RK4 time step in s (0 < dt < t_end).
+        dt: RK4 time step in s (0 < dt < t_end), within RK4's stability bound for the fastest mode of the model
+            linearised at rest (filters included); above half of it a ``jdpim.StepSizeWarning``. A clearance
+            between opposed constraints must be at least four times the noise's motion across it within one step.
         save_at: times in s at which the state is kept (strictly increasing, in [0, t_end], on the
-            time grid). Only these are stored. Default: ``(t_end,)``.
+            time grid). Only these are stored. Default: ``(t_end,)`` (which :meth:`replace` moves with ``t_end``).
         x0: initial displacement (traced); ``None`` starts at the barrier (or 0).
         v0: initial velocity (traced).
-        random: random system parameters, ``{name: Normal(...) | Uniform(...)}``, where ``name`` is a
-            model field or ``"x0"``/``"v0"``. They become extra DPIM input dimensions.
+        random: random system parameters, ``{name: law}`` with a ``jdpim.Normal``, ``Uniform``, ``TruncatedNormal``
+            or ``LogNormal`` law, where ``name`` is a model parameter or ``"x0"``/``"v0"``. Every value the law
+            can take must be one the parameter may take (``r`` in [0, 1], ``x0`` at or above the barrier, ...;
+            a truncated law bounds a normal one). They become extra DPIM input dimensions.
         excitation: how the white noise is generated: ``jdpim.SpectralRepresentation()`` (DPIM needs it; Monte
             Carlo may use it) or ``jdpim.GaussianNodes()`` (Monte Carlo: Gaussian values drawn inside the steps),
             or ``None`` (default) for each method's own (:meth:`excitation_for`): the spectral representation
@@ -126,6 +139,8 @@ class Scene:
                 f"the model's gains expect {n_sources_of(self.model)} noise source(s) but noise.D "
                 f"has {self.noise.n_sources}"
             )
+        self._check_step()
+        self._check_clearances()
         if isinstance(self.model, AbstractOscillator):
             check_real("v0", self.v0, scalar=True)
             if self.x0 is not None:
@@ -137,6 +152,56 @@ class Scene:
                     )
         else:
             self._check_vector_start()
+
+    def _check_step(self) -> None:
+        """``dt`` against RK4's stability bound for the fastest mode of the model linearised at rest (filter
+        coordinates included): beyond it a ``ValueError``, above ``STEP_WARN`` of it a ``StepSizeWarning``."""
+        jac = self.model.linearised()
+        if jac is None:
+            return  # traced parameters: checked where the scene is built with numbers
+        eigenvalues = np.linalg.eigvals(jac)
+        if self.dt * np.max(np.abs(eigenvalues)) <= STEP_WARN * RK4_RADIUS:
+            return  # the usual case, well inside the region: no search needed
+        limit, lam = rk4_step_limit(eigenvalues)
+        if self.dt <= STEP_WARN * limit:
+            return
+        mode = f"the mode with eigenvalue {lam:.4g} (|lambda| = {abs(lam):.4g} rad/s)"
+        if self.dt > limit:
+            raise ValueError(
+                f"dt={self.dt!r} is beyond RK4's stability bound for {mode}: the largest stable dt is {limit:.4g}"
+            )
+        warnings.warn(
+            f"dt={self.dt!r} is {self.dt / limit:.0%} of RK4's stability bound {limit:.4g} for {mode}: that mode "
+            "is integrated inaccurately; reduce dt",
+            StepSizeWarning,
+            stacklevel=4,
+        )
+
+    def _check_clearances(self) -> None:
+        """Each clearance between opposed constraints against what one step resolves: ``ValueError`` where it is
+        narrower than ``CLEARANCE_STEPS`` times the motion the noise gives it inside one step,
+        ``sqrt(2 u^T D u / 3) dt^(3/2)`` (``u = n . M^-1 B``: the noise's accelerations along the normal; the RMS
+        of the displacement the noise of one step makes by its end)."""
+        if not isinstance(self.model, MDOFOscillator) or len(self.model.constraints) < 2:
+            return
+        d, gains = concrete(self.noise.D), concrete(self.model.gains)
+        position = [concrete(c.position) for c in self.model.constraints]
+        if d is None or gains is None or any(b is None for b in position):
+            return  # traced or placeholder leaves (jit, lower): checked where the scene is built
+        d, normal = np.atleast_2d(d), np.array([c.normal for c in self.model.constraints])
+        for i, j, width in clearances(normal, np.array(position, float)):
+            if width <= 0:
+                raise ValueError(f"constraints[{i}] and constraints[{j}] leave no room between them (width {width:g})")
+            u = normal[i] @ self.model.inverse_mass() @ gains
+            rate = np.sqrt(2.0 * float(u @ d @ u) / 3.0)  # per dt^(3/2)
+            if width < CLEARANCE_STEPS * rate * self.dt**1.5:
+                need = (width / (CLEARANCE_STEPS * rate)) ** (2.0 / 3.0)
+                raise ValueError(
+                    f"the clearance between constraints[{i}] and [{j}] ({width:.3g} wide) is below what dt={self.dt!r} "
+                    f"resolves: the noise moves across it by {rate * self.dt**1.5:.3g} within one step (sqrt(2 D / 3) "
+                    f"|n . M^-1 B| dt^1.5), and a step resolves clearances over {CLEARANCE_STEPS:g} times that; "
+                    f"use dt <= {need:.3g}"
+                )
 
     @property
     def held_constraints(self) -> tuple[bool, ...]:
@@ -161,6 +226,8 @@ class Scene:
             cons = None  # traced or placeholder leaves (jit, lower): checked where the scene is built
         else:
             cons = self.model.stacked_constraints()
+        if x0 is not None and self.x0 is not None:
+            check_harmonic_start(self.model, x0)
         if cons is not None:
             c = cons.normal @ np.broadcast_to(x0, (n,)) - concrete(cons.position)
             if np.any(c < 0):
@@ -185,10 +252,11 @@ class Scene:
             raise ValueError(f"save_at times {times[off].tolist()} are not multiples of dt={self.dt!r}")
         return tuple(float(t) for t in np.round(steps) * self.dt)
 
-    def _checked_random(self, random) -> tuple[tuple[str, Uniform | Normal], ...]:
+    def _checked_random(self, random) -> tuple[tuple[str, Distribution], ...]:
         items = tuple(random.items()) if isinstance(random, Mapping) else tuple(random)
         starts = {"x0", "v0"} if isinstance(self.model, AbstractOscillator) else set()  # vector starts: fixed
         allowed = set(model_parameter_names(self.model)) | starts
+        laws = (Uniform, Normal, TruncatedNormal, LogNormal)
         for item in items:
             if not (isinstance(item, Sequence) and len(item) == 2):
                 raise TypeError(f"random must map parameter names to distributions, got {random!r}")
@@ -196,9 +264,25 @@ class Scene:
             if name not in allowed:
                 shown = sorted(allowed) if len(allowed) <= 12 else sorted(allowed)[:12] + ["..."]
                 raise ValueError(f"random parameter {name!r} is not a model parameter; choose from {shown}")
-            if not isinstance(dist, (Uniform, Normal)):
-                raise TypeError(f"random[{name!r}] must be jdpim.Normal or jdpim.Uniform, got {dist!r}")
+            if not isinstance(dist, laws):
+                names = ", ".join(f"jdpim.{k.__name__}" for k in laws)
+                raise TypeError(f"random[{name!r}] must be one of {names}, got {dist!r}")
+            self._random_range(name, dict(items)).check_law(name, dist)
         return tuple((str(n), d) for n, d in items)
+
+    def _random_range(self, name: str, random: dict) -> Range:
+        """The values a random parameter may take: the model's range; a start lies on the admissible side of a
+        fixed barrier (``x0 >= barrier``), and a random barrier on the near side of a fixed start."""
+        model = self.model
+        if name == "v0":
+            return Range()
+        barrier = concrete(model.barrier) if isinstance(model, AbstractOscillator) and model.has_barrier else None
+        if name == "x0":
+            return Range() if barrier is None or "barrier" in random else Range(float(barrier))
+        x0 = concrete(self.x0)
+        if name == "barrier" and x0 is not None and "x0" not in random:
+            return Range(high=float(x0))
+        return model.parameter_range(name)
 
     # ---- derived, static quantities -------------------------------------------------------------
     @property
@@ -237,7 +321,10 @@ class Scene:
         return (ANGLE,) * (2 * self.n_sources) + tuple(d for _, d in self.random)
 
     def replace(self, **changes) -> Scene:
-        """A copy with fields replaced (``scene.replace(model=scene.model.replace(alpha=0.05))``)."""
+        """A copy with fields replaced (``scene.replace(model=scene.model.replace(alpha=0.05))``). A ``save_at``
+        that is ``(t_end,)`` (the default) follows a new ``t_end``."""
+        if "t_end" in changes and "save_at" not in changes and self.save_at == (self.t_end,):
+            changes["save_at"] = None
         return dataclasses.replace(self, **changes)
 
     def initial_state(self) -> tuple:
@@ -289,8 +376,7 @@ def saved_index(save_at: Sequence[float], t: float) -> int:
 # ---- parameters by name -------------------------------------------------------------------------
 
 
-_MATRIX_ENTRY = re.compile(r"^(damping|stiffness|gains)\[(\d+),\s*(\d+)\]$")
-_CONSTRAINT = re.compile(r"^constraints\[(\d+)\]\.(r|position)$")
+_MATRIX_ENTRY, _CONSTRAINT = MATRIX_ENTRY, CONSTRAINT
 
 
 def _has_params_key(model, name: str) -> bool:

@@ -19,6 +19,8 @@ from ._mdof import Barrier, MDOFOscillator
 from ._pytree import check_real
 from .systems import _number
 
+HARMONIC = "xh"  # the coordinate of a harmonic filter (its cosine)
+
 
 @dataclasses.dataclass(frozen=True)
 class _PaddedForce:
@@ -43,10 +45,18 @@ def _block(model: MDOFOscillator, name: str, k: int) -> np.ndarray:
     return out
 
 
+def _structure(model) -> MDOFOscillator:
+    """``model`` if it is a :class:`jdpim.MDOFOscillator` (what a filter is appended to), else a ``TypeError``."""
+    if not isinstance(model, MDOFOscillator):
+        raise TypeError(
+            f"model must be a jdpim.MDOFOscillator (one degree of freedom too: mass=[[1.0]], ...), "
+            f"got {type(model).__name__}"
+        )
+    return model
+
+
 def _augment(model, names, mass, damping, stiffness, gains, start=None) -> MDOFOscillator:
     """``model`` with the filter coordinates ``names`` appended: the filter rows of every matrix given."""
-    if not isinstance(model, MDOFOscillator):
-        raise TypeError(f"model must be a jdpim.MDOFOscillator, got {type(model).__name__}")
     n, k = model.dimension, len(names)
     base = model.coordinates[:n]
     clash = sorted(set(base) & set(names))
@@ -106,6 +116,7 @@ def kanai_tajimi(model: MDOFOscillator, omega_g: float = 15.6, zeta_g: float = 0
         >>> jdpim.kanai_tajimi(jdpim.pounding_frame(n_storeys=2)).coordinates
         ('x1', 'x2', 'xf', 'v1', 'v2', 'vf')
     """
+    model = _structure(model)
     wg = _number("omega_g", omega_g, low=0.0, low_open=True)
     zg = _number("zeta_g", zeta_g, low=0.0, low_open=True)
     iota = _influence(model, influence)
@@ -137,9 +148,8 @@ def first_order_filter(model: MDOFOscillator, a: float = 1.0) -> MDOFOscillator:
         >>> jdpim.first_order_filter(jdpim.impact_damper(), a=2.0).coordinates
         ('x1', 'x2', 'xf', 'v1', 'v2', 'vf')
     """
+    model = _structure(model)
     rate = _number("a", a, low=0.0, low_open=True)
-    if not isinstance(model, MDOFOscillator):
-        raise TypeError(f"model must be a jdpim.MDOFOscillator, got {type(model).__name__}")
     n, m = model.dimension, model.n_sources
     B = np.asarray(model.gains, dtype=float)
     damping = _block(model, "damping", m)
@@ -155,7 +165,7 @@ def harmonic(model: MDOFOscillator, amplitude: float, frequency: float, directio
 
     The cosine is the filter coordinate ``xh`` (velocity ``vh``) of ``xh'' + Omega^2 xh = 0`` that starts at
     ``xh = 1``, ``vh = 0`` (the model's ``start``, used where the scene gives no ``x0``; a scene's ``x0`` must
-    put 1 there itself); the structure feels ``A b xh``.
+    put 1 there itself, else the scene is refused); the structure feels ``A b xh``.
 
     Args:
         model: the structure, ``n`` coordinates.
@@ -168,10 +178,9 @@ def harmonic(model: MDOFOscillator, amplitude: float, frequency: float, directio
         >>> jdpim.harmonic(jdpim.impact_damper(), amplitude=0.1, frequency=0.9).start
         (0.0, 0.0, 1.0)
     """
+    model = _structure(model)
     amp = _number("amplitude", amplitude)
     w = _number("frequency", frequency, low=0.0, low_open=True)
-    if not isinstance(model, MDOFOscillator):
-        raise TypeError(f"model must be a jdpim.MDOFOscillator, got {type(model).__name__}")
     n = model.dimension
     b = np.asarray(model.gains, dtype=float)[:, 0] if direction is None else np.asarray(direction, dtype=float)
     if b.shape != (n,):
@@ -182,4 +191,19 @@ def harmonic(model: MDOFOscillator, amplitude: float, frequency: float, directio
     stiffness[n, n] = w * w
     gains = np.vstack([np.asarray(model.gains, dtype=float), np.zeros((1, model.n_sources))])
     start = (model.start or (0.0,) * n) + (1.0,)
-    return _augment(model, ("xh",), np.ones((1, 1)), _block(model, "damping", 1), stiffness, gains, start)
+    return _augment(model, (HARMONIC,), np.ones((1, 1)), _block(model, "damping", 1), stiffness, gains, start)
+
+
+def check_harmonic_start(model, x0) -> None:
+    """``ValueError`` where a scene's ``x0`` (concrete, scalar or ``(n,)``) gives the harmonic filter coordinate
+    ``xh`` of :func:`harmonic` a start other than 1: it scales the harmonic force (0 switches it off)."""
+    names = model.coordinates[: model.dimension]
+    if HARMONIC not in names:
+        return
+    i = names.index(HARMONIC)
+    value = float(np.broadcast_to(x0, (model.dimension,))[i])
+    if value != 1.0:
+        raise ValueError(
+            f"x0 starts the harmonic filter coordinate {HARMONIC} at {value:g}, which scales the harmonic force by "
+            f"{value:g}: give x0[{i}] = 1.0, or leave x0=None (the model's start)"
+        )

@@ -42,7 +42,54 @@ NODES_CHUNK = 2 * WIDE_CHUNK
 
 
 class NonFiniteWarning(RuntimeWarning):
-    """Some paths produced non-finite states (blow-up); their mass is left out of every density."""
+    """Some paths produced non-finite or diverged states (blow-up); their mass is left out of every density."""
+
+
+# a path whose coordinate or velocity exceeds this many times the scale its start and the noise give it (see
+# divergence_scale) has diverged: its states are stored as NaN, counted and warned about like non-finite ones
+DIVERGED = 1e6
+
+
+def divergence_scale(scene: Scene) -> np.ndarray | None:
+    """``(2 n,)``: how far a path's coordinates and velocities can plausibly reach by ``t_end``; ``None`` where the
+    scene's parameters are traced.
+
+    The velocity scale ``V = |v0| + |J| |x0| + |B| sqrt(2 |D| t_end) + |a0| t_end`` adds the start (``J`` the
+    Jacobian of the model linearised at rest, infinity norms), the free growth of the noise's impulses (``B`` the
+    accelerations per unit noise at rest) and of a constant force (``a0`` the acceleration at rest without noise);
+    coordinates reach ``|x0| + V t_end``. Random starts count with their mean plus ten
+    standard deviations."""
+    model, jac, d = scene.model, scene.model.linearised(), concrete(scene.noise.D)
+    x0, v0 = (concrete(a) for a in scene.initial_state())
+    if jac is None or d is None or x0 is None or v0 is None:
+        return None
+    start = {"x0": float(np.max(np.abs(x0))), "v0": float(np.max(np.abs(v0)))}
+    for name, dist in scene.random:
+        if name in start:
+            start[name] += abs(dist.mean) + 10.0 * dist.std
+    q = jnp.asarray(model.rest(), scene.float_dtype)
+    xi = jnp.zeros((scene.n_sources,), q.dtype)
+
+    def acceleration(xi):
+        return model.state_acceleration(q, jnp.zeros_like(q), xi)
+
+    gains, drift = np.asarray(jax.jacfwd(acceleration)(xi)), np.asarray(acceleration(xi))
+    norm = np.max(np.sum(np.abs(jac), axis=1))
+    kick = np.max(np.sum(np.abs(gains), axis=1)) * np.sqrt(2.0 * np.max(np.abs(d)) * scene.t_end)
+    v = start["v0"] + norm * start["x0"] + kick + np.max(np.abs(drift)) * scene.t_end
+    n = model.dimension
+    return np.concatenate([np.full(n, start["x0"] + v * scene.t_end), np.full(n, v)])
+
+
+def without_diverged(scene: Scene, states):
+    """``states`` ``(N, S, 2 n)`` with those of paths beyond ``DIVERGED`` times :func:`divergence_scale` set to NaN
+    (from the first saved time beyond it on), so that they count as non-finite (``Result.n_nonfinite``)."""
+    scale = divergence_scale(scene)
+    if scale is None:
+        return states
+    beyond = jnp.any(jnp.abs(states) > jnp.asarray(DIVERGED * scale, states.dtype)[None, None], axis=-1)
+    beyond = jnp.cumsum(beyond, axis=1) > 0
+    return jnp.where(beyond[..., None], jnp.nan, states)
 
 
 def _largest_chunk(scene: Scene, kind: str) -> int:
@@ -383,11 +430,13 @@ def _run_local(scene: Scene, rows, *, kind, chunk_size, block_size, devices, pro
 
 
 def _finish(scene: Scene, states, weights, method: str) -> Result:
+    states = without_diverged(scene, states)
     res = Result(scene.save_at, states, weights, scene.model.bounds(), method, scene.model.coordinates)
     counts = concrete(res.n_nonfinite())
     if counts is not None and counts.any():
         warnings.warn(
-            f"{int(counts.max())} of {res.n_paths} paths have non-finite states (per saved time: "
+            f"{int(counts.max())} of {res.n_paths} paths have non-finite or diverged states (beyond {DIVERGED:g} "
+            f"times the reach of their start and the noise; per saved time: "
             f"{counts.tolist()}); their probability is left out of the densities "
             "(Result.lost_mass). Reduce dt or the excitation level, or sub-step stiff steps "
             "(Scene(..., substeps=jdpim.Substeps())).",
