@@ -17,12 +17,16 @@ import functools
 import warnings
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from .._models import AbstractOscillator
 from .._pytree import concrete
 from .._scene import Scene
+from .._tangents import contract, tangent_basis
 from .._warnings import SensitivityWarning
+
+MAX_DIRECTIONS = 32  # differentiated scalars beyond which reverse mode runs unprobed (plain AD, no check)
 
 GRAZING = (
     "pathwise derivatives through a start at rest on the barrier (a grazing impact) are biased: each path's "
@@ -90,3 +94,53 @@ def _watched(message, leaves):
 def _watched_jvp(message, primals, tangents):
     warnings.warn(message, SensitivityWarning, stacklevel=2)
     return primals[0], tangents[0]
+
+
+def probed(run, scene: Scene, rows):
+    """``run(scene, rows)`` (per-path outputs, path axis first); differentiated, its per-path tangents are
+    found by forward mode, one direction per differentiated scalar of ``scene``, so that reverse mode can
+    check the per-path contributions of whatever it differentiates (``jdpim._tangents``).
+
+    Values and cost are unchanged when nothing is differentiated. Differentiated, the cost is that of
+    ``jax.jacfwd`` over those scalars (reverse mode then needs no backward pass through the steps); beyond
+    ``MAX_DIRECTIONS`` of them it is plain AD, unchecked in reverse mode.
+    """
+    leaves, treedef = jax.tree_util.tree_flatten(scene)
+    return _probed(run, treedef, leaves, rows)
+
+
+@functools.partial(jax.custom_jvp, nondiff_argnums=(0, 1))
+def _probed(run, treedef, leaves, rows):
+    return run(jax.tree_util.tree_unflatten(treedef, leaves), rows)
+
+
+def _inexact(x) -> bool:
+    return jnp.issubdtype(jnp.result_type(x), jnp.inexact)
+
+
+def _probed_jvp(run, treedef, primals, tangents):
+    leaves, rows = primals
+    dots = tangents[0]
+    live = [i for i, (x, d) in enumerate(zip(leaves, dots, strict=True)) if _inexact(x) and not _zero(d)]
+
+    def f(live_leaves):
+        full = list(leaves)
+        for i, x in zip(live, live_leaves, strict=True):
+            full[i] = x
+        return run(jax.tree_util.tree_unflatten(treedef, full), rows)
+
+    live_leaves = [leaves[i] for i in live]
+    live_dots = [dots[i] for i in live]
+    basis, n_dir = tangent_basis(live_leaves)
+    if not live or n_dir > MAX_DIRECTIONS:
+        return jax.jvp(f, (live_leaves,), (live_dots,))
+    out, J = jax.vmap(lambda d: jax.jvp(f, (live_leaves,), (d,)), out_axes=(None, 0))(basis)
+    td = jnp.concatenate([jnp.reshape(d, (-1,)) for d in live_dots]).astype(J.dtype)
+    return out, jax.tree_util.tree_map(lambda j: contract(j, td), J)
+
+
+_probed.defjvp(_probed_jvp, symbolic_zeros=True)
+
+
+def _zero(d) -> bool:
+    return type(d) is jax.custom_derivatives.SymbolicZero or jnp.result_type(d) == jax.dtypes.float0

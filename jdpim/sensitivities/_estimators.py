@@ -36,10 +36,10 @@ import numpy as np
 from .._models import AbstractOscillator, Oscillator, VibroImpactOscillator
 from .._pytree import check_real, concrete
 from .._scene import get_parameter, set_parameter
+from .._tangents import STDERR_WARN
 from .._warnings import SensitivityWarning as SensitivityWarning
 
 DRIFT_EXCLUDED = ("r", "barrier", "D")
-STDERR_WARN = 0.25  # relative L2 standard error above which a sampled derivative is flagged
 
 
 class AbstractEstimator:
