@@ -281,9 +281,10 @@ def sensitivity(
         >>> import jdpim, numpy as np
         >>> model = jdpim.VibroImpactOscillator(alpha=0.1, gamma=None, barrier=None)  # cheap to compile
         >>> scene = jdpim.Scene(model, noise=jdpim.WhiteNoise(D=0.05), t_end=2.0, dt=0.02)
-        >>> dp = jdpim.sensitivity(scene, ("alpha",), "v", np.linspace(-1.0, 1.0, 9), method=jdpim.DPIM(16))
-        >>> dp["alpha"].shape, type(dp.estimators["alpha"]).__name__
-        ((9,), 'Pathwise')
+        >>> grid = np.linspace(-1.0, 1.0, 9)
+        >>> dp = jdpim.sensitivity(scene, ("alpha",), "v", grid, method=jdpim.MonteCarlo(n_samples=2000))
+        >>> dp["alpha"].shape, type(dp.estimators["alpha"]).__name__, bool(np.all(dp.stderr["alpha"] > 0))
+        ((9,), 'Pathwise', True)
     """
     if not isinstance(scene, Scene):
         raise TypeError(f"scene must be a jdpim.Scene, got {type(scene).__name__}")
