@@ -25,6 +25,7 @@ the cotangent ``ct`` comes from. The check runs on the host (``jax.debug.callbac
 
 from __future__ import annotations
 
+import functools
 import warnings
 
 import jax
@@ -37,29 +38,48 @@ from ._warnings import SensitivityWarning
 
 MIN_EFFECTIVE_PATHS = 16.0  # below this the second moment of the contributions is uncertain by more than 1/4
 STDERR_WARN = 0.25  # relative L2 standard error from which a sampled derivative is flagged
+PROJECTIONS = 8  # outputs beyond which per-path contributions are projected before they leave the device
 
 
 def effective_paths(norms) -> float:
-    """``(sum_i a_i)^2 / sum_i a_i^2`` of the per-path squared contributions ``a_i`` (``(N,)``); ``inf`` when all
-    are zero, 0 when one is not finite."""
+    """``(sum_i a_i)^2 / sum_i a_i^2`` of the per-path squared contributions ``a_i`` (``(N,)``; scaled by their
+    largest first, so nothing overflows); 0 when one is not finite, ``inf`` when all are zero."""
     a = np.asarray(norms, np.float64)
-    s2 = float(np.sum(a * a))
-    if not np.isfinite(s2):
+    top = np.max(a)
+    if not np.isfinite(top):
         return 0.0
-    return float(np.sum(a) ** 2 / s2) if s2 > 0 else np.inf
+    if top == 0:
+        return np.inf
+    r = a / top
+    return float(np.sum(r) ** 2 / np.sum(r * r))
 
 
-def warn_if_unreliable(norms, relative_error: float, stacklevel: int = 2) -> None:
-    """Warn (:class:`SensitivityWarning`) when a pathwise derivative is both uncertain (standard error
-    ``relative_error`` of its size, relative L2, at least ``STDERR_WARN``) and carried by few of its ``N`` paths
-    (:func:`effective_paths` of the squared contributions ``norms``, ``(N,)``, below ``MIN_EFFECTIVE_PATHS``, or
-    below ``N / 16`` for fewer than 256 paths), so that the standard error itself cannot be trusted.
+def relative_error(contributions) -> float:
+    """Standard error of ``sum_i c_i`` (as for equal weights; relative L2 over the outputs) against its size,
+    from per-path contributions ``(N, M)``; scaled by the largest first."""
+    c = np.asarray(contributions, np.float64)
+    n = c.shape[0]
+    top = np.max(np.abs(c))
+    if not np.isfinite(top):
+        return np.inf
+    c = c / (top if top > 0 else 1.0)
+    value = np.sum(c, axis=0)
+    stderr = np.sqrt(np.sum((c - value / n) ** 2, axis=0) * n / max(n - 1, 1))
+    size = np.linalg.norm(value)
+    if size == 0:
+        return np.inf if top > 0 else 0.0
+    return float(np.linalg.norm(stderr) / size)
+
+
+def warn_if_unreliable(n: int, n_eff: float, relative_error: float, stacklevel: int = 2) -> None:
+    """Warn (:class:`SensitivityWarning`) when a pathwise derivative through ``n`` paths is both uncertain
+    (standard error ``relative_error`` of its size, relative L2, at least ``STDERR_WARN``) and carried by few of
+    its paths (``n_eff``, :func:`effective_paths`, below ``MIN_EFFECTIVE_PATHS``, or below ``n / 16`` for fewer
+    than 256 paths), so that the standard error itself cannot be trusted.
 
     Few paths of one sign give ``relative_error`` about ``n_eff^-1/2`` (above 1/4 below 16 paths); many paths that
     a kernel localises in a tail give a small ``n_eff`` with a small error, which is not flagged.
     """
-    n = np.shape(norms)[0]
-    n_eff = effective_paths(norms)
     if n_eff < min(MIN_EFFECTIVE_PATHS, n / 16) and not relative_error < STDERR_WARN:
         warnings.warn(
             f"this pathwise derivative through {n} sampled paths is carried by {n_eff:.3g} of them, with a standard "
@@ -72,30 +92,35 @@ def warn_if_unreliable(norms, relative_error: float, stacklevel: int = 2) -> Non
 
 
 def check_contributions(contributions) -> None:
-    """:func:`warn_if_unreliable` of per-path contributions ``(N, ...)`` (path axis first, weights included, the
-    standard error as for equal weights), on the host."""
+    """:func:`warn_if_unreliable` of per-path contributions ``(N, M)`` (path axis first, weights included)."""
     c = np.asarray(contributions, np.float64)
-    c = c.reshape(c.shape[0], -1)
-    n = c.shape[0]
-    value = np.sum(c, axis=0)
-    stderr = np.sqrt(np.sum((c - value / n) ** 2, axis=0) * n / max(n - 1, 1))
-    size = np.linalg.norm(value)
-    rel = float(np.linalg.norm(stderr) / size) if size > 0 else (0.0 if not np.any(stderr) else np.inf)
     with np.errstate(over="ignore", invalid="ignore"):
         norms = np.sum(np.where(np.isfinite(c), c, np.inf) ** 2, axis=1)
-    warn_if_unreliable(norms, rel if np.isfinite(rel) else np.inf, stacklevel=2)
+    warn_if_unreliable(c.shape[0], effective_paths(norms), relative_error(c), stacklevel=2)
 
 
 def _report(contributions) -> None:
-    jax.debug.callback(check_contributions, contributions)
+    """Check per-path contributions ``(N, ...)`` on the host (:func:`check_contributions`), under ``jit`` too.
+
+    Only linear maps of the contributions are computed on the device: in reverse mode the forward-mode check
+    is part of the linear (transposed) computation, whose callback drops out. Beyond ``PROJECTIONS`` outputs
+    (a density on a grid) they are projected on ``PROJECTIONS`` fixed random directions, which keep their
+    norms and sums in expectation, so that ``(N, PROJECTIONS)`` numbers leave the device.
+    """
+    c = contributions.reshape(contributions.shape[0], -1)
+    if c.shape[1] > PROJECTIONS:
+        directions = np.random.default_rng(0).normal(size=(c.shape[1], PROJECTIONS)) / np.sqrt(PROJECTIONS)
+        c = c @ jnp.asarray(directions, c.dtype)
+    jax.debug.callback(check_contributions, c)
 
 
 @jax.custom_jvp
 def watch_forward(y, contributions_of):
-    """``y`` itself; in forward mode, ``contributions_of(y, y_dot)`` (per-path, path axis first) is checked.
+    """``y`` itself; in forward mode, ``contributions_of(y, y_dot)`` (per path, path axis first; linear in
+    ``y_dot``) is checked (:func:`_report`).
 
     ``contributions_of`` is a ``jax.tree_util.Partial``. In reverse mode the check drops out (``jax.debug.callback``
-    is dropped when transposed) and :func:`contract` checks instead.
+    is dropped when transposed) and the pipeline's :func:`contract` checks instead.
     """
     return y
 
@@ -106,6 +131,23 @@ def _watch_forward_jvp(primals, tangents):
     y_dot = tangents[0]
     _report(fn(y, y_dot))
     return y, y_dot
+
+
+def watch(tree, message: str):
+    """``tree`` itself; differentiating through it warns ``message`` (``SensitivityWarning``), in any mode."""
+    leaves, treedef = jax.tree_util.tree_flatten(tree)
+    return jax.tree_util.tree_unflatten(treedef, _watched(message, leaves))
+
+
+@functools.partial(jax.custom_jvp, nondiff_argnums=(0,))
+def _watched(message, leaves):
+    return leaves
+
+
+@_watched.defjvp
+def _watched_jvp(message, primals, tangents):
+    warnings.warn(message, SensitivityWarning, stacklevel=2)
+    return primals[0], tangents[0]
 
 
 def tangent_basis(leaves) -> tuple[list, int]:

@@ -93,6 +93,16 @@ def test_a_well_spread_derivative_is_exact_and_quiet(transform, functional):
     np.testing.assert_allclose(d, _exact(functional, rows), rtol=1e-4)
 
 
+@pytest.mark.parametrize("transform", ["grad", "jacfwd"])
+def test_histogram_derivatives_warn(transform):
+    """A histogram is piecewise constant in the paths: its derivative is zero, never a sensitivity."""
+    rows = _paths(heavy=False)
+    edges = np.linspace(0.0, 1.0, 6)
+    with pytest.warns(jdpim.SensitivityWarning, match=r"derivative of a histogram is zero.*jdpim\.sensitivity"):
+        d = TRANSFORMS[transform](lambda a: _result(a, rows).histogram("x", edges)[2])(jnp.float32(0.03))
+    assert float(d) == 0.0
+
+
 def test_values_are_unchanged_without_derivatives():
     rows = _paths(heavy=True)
     states = _result(jnp.float32(0.03), rows).states

@@ -14,7 +14,6 @@ mode, also under ``jit``): values and cost are unchanged otherwise.
 from __future__ import annotations
 
 import functools
-import warnings
 
 import jax
 import jax.numpy as jnp
@@ -23,8 +22,7 @@ import numpy as np
 from .._models import AbstractOscillator
 from .._pytree import concrete
 from .._scene import Scene
-from .._tangents import contract, tangent_basis
-from .._warnings import SensitivityWarning
+from .._tangents import contract, tangent_basis, watch
 
 MAX_DIRECTIONS = 32  # differentiated scalars beyond which reverse mode runs unprobed (plain AD, no check)
 
@@ -67,12 +65,6 @@ INDICATOR = (
 )
 
 
-def watch(tree, message: str):
-    """``tree`` itself; differentiating through it warns ``message`` (``SensitivityWarning``)."""
-    leaves, treedef = jax.tree_util.tree_flatten(tree)
-    return jax.tree_util.tree_unflatten(treedef, _watched(message, leaves))
-
-
 def guard(scene: Scene) -> Scene:
     """``scene`` itself; differentiating through it warns (``SensitivityWarning``) when its paths start grazing,
     or when it has several degrees of freedom and constraints."""
@@ -83,17 +75,6 @@ def guard(scene: Scene) -> Scene:
     else:
         return scene
     return watch(scene, message)
-
-
-@functools.partial(jax.custom_jvp, nondiff_argnums=(0,))
-def _watched(message, leaves):
-    return leaves
-
-
-@_watched.defjvp
-def _watched_jvp(message, primals, tangents):
-    warnings.warn(message, SensitivityWarning, stacklevel=2)
-    return primals[0], tangents[0]
 
 
 def probed(run, scene: Scene, rows):

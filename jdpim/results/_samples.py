@@ -10,9 +10,14 @@ import numpy as np
 
 from .._pytree import check_grid, check_points, check_real, concrete, plain, pytree_dataclass, static_field
 from .._scene import static_times
-from .._tangents import watch_forward
+from .._tangents import watch, watch_forward
 from . import _density
 from ._base import COORDINATES, AbstractResult
+
+HISTOGRAM = (
+    "the derivative of a histogram is zero: each path's bin is piecewise constant in the parameters; "
+    "differentiate Result.pdf (a kernel density) or use jdpim.sensitivity"
+)
 
 
 def reflection(bounds, var):
@@ -167,7 +172,7 @@ class Result(AbstractResult):
     def histogram(self, var, edges, t: float | None = None):
         """Weighted histogram density of ``var`` at time ``t`` on bin ``edges``; shape ``(len(edges) - 1,)``."""
         check_grid("edges", edges)
-        return _density.histogram(self.samples(var, t), self.weights, jnp.asarray(edges))
+        return _density.histogram(watch(self.samples(var, t), HISTOGRAM), self.weights, jnp.asarray(edges))
 
     def moment(self, var, order: int, t: float | None = None):
         """Weighted raw moment ``E[var^order]`` at time ``t`` over the paths with finite states."""

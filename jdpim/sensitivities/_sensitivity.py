@@ -10,8 +10,9 @@ with per-path contributions ``c_i`` from an estimator per parameter (``jdpim.sen
 computes its own from the common paths of a :class:`PathContext`): a likelihood
 ratio (Girsanov score) for drift parameters, the exact noise scaling for ``D``, central differences with
 common random numbers for ``r``, or pathwise AD through the pipeline (exact for the computed density, but
-only over short horizons when there are impacts). ``estimator="auto"`` picks the pathwise derivative for
-models without a barrier (it is exact and bounded there) and otherwise the bounded estimators.
+only over short horizons when there are impacts; flagged where few paths carry it). ``estimator="auto"`` picks
+the pathwise derivative for models without a barrier (it is exact and bounded there) and otherwise the bounded
+estimators.
 docs/gradients.md says which to use when.
 
 Bandwidth: ``None`` uses the rule-based ``sigma`` at the nominal parameters, held fixed, so every estimator
@@ -28,13 +29,12 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from .._integrate import Sums
 from .._models import AbstractOscillator
 from .._pytree import check_real, concrete, real_array
 from .._scene import Scene, parameter_names, parameter_value, with_parameters
-from .._tangents import warn_if_unreliable
+from .._tangents import effective_paths, warn_if_unreliable
 from ..methods._base import AbstractMethod
 from ..methods._monte_carlo import MonteCarlo
 from ..methods._paths import _is_traced, run_paths
@@ -76,8 +76,8 @@ class Sensitivity(Mapping):
 
     Attributes:
         value: ``{name: array}``, shaped like the PDF, in PDF units per parameter unit.
-        stderr: ``{name: array}`` of the same shapes: the sampling error (NaN for :class:`Pathwise`, which
-            does not estimate it; zero for path integration, which has none).
+        stderr: ``{name: array}`` of the same shapes: the sampling error (NaN for ``Pathwise(mode="reverse")``,
+            which does not estimate it; zero for path integration, which has none).
         estimators: ``{name: estimator}`` actually used (the ``PathIntegration`` settings for path integration).
         t: the time of the derivative, s (``inf`` for a stationary density).
         method: ``"path_integration"``, ``"dpim"`` or ``"monte_carlo"``.
@@ -271,11 +271,15 @@ def sensitivity(
         ``.value``, ``.stderr``, ``.estimators`` and ``.method``. Path integration has no sampling error:
         its ``stderr`` is zero and ``estimators`` holds the ``PathIntegration`` settings used (its grid
         error, measured in docs/gradients.md, is about 1e-3 relative at the defaults). A
-        :class:`SensitivityWarning` flags pathwise results beyond their horizon or exploding, results
-        whose standard error exceeds a quarter of their size, non-finite path-integration derivatives,
-        transient ones within ``10 t0`` of the start (its linearised start density shows there) and ``dp/dD``
-        on a velocity grid too coarse for one step's diffusion; path integration's own
+        :class:`SensitivityWarning` flags pathwise results beyond their horizon, exploding or carried by few
+        paths, results whose standard error exceeds a quarter of their size, non-finite path-integration
+        derivatives, transient ones within ``10 t0`` of the start (its linearised start density shows there) and
+        ``dp/dD`` on a velocity grid too coarse for one step's diffusion; path integration's own
         ``PathIntegrationWarning`` reports its nominal grid.
+
+    Raises:
+        TypeError: under a JAX transformation (``jit``, ``vmap``, ``grad``): the method is picked and the
+            estimates checked on concrete values.
 
     Example:
         >>> import jdpim, numpy as np
@@ -421,9 +425,9 @@ def _pathwise(scene, names, estimators, query: Query, method, rows, weights, chu
     for n in names:
         dx, dv = (jnp.where(w > 0, tangents[n][:, index, k], 0.0) for k in (0, 1))
         value[n], stderr[n] = jax.jit(_moments, static_argnums=0)(contribution, (x, v, dx, dv), w)
-        norms = np.asarray(jax.jit(_squared_norms, static_argnums=0)(contribution, (x, v, dx, dv), w))
+        n_eff = effective_paths(jax.jit(_squared_norms, static_argnums=0)(contribution, (x, v, dx, dv), w))
         size = float(jnp.linalg.norm(value[n]))
-        warn_if_unreliable(norms, float(jnp.linalg.norm(stderr[n])) / size if size > 0 else np.inf, 5)
+        warn_if_unreliable(w.shape[0], n_eff, float(jnp.linalg.norm(stderr[n])) / size if size > 0 else math.inf, 5)
         if bandwidth == "adaptive":  # the rule's own derivative, through the same tangents
             value[n] = jax.jvp(density, (states,), (tangents[n],))[1]
     pathwise_guard(scene.model.has_barrier, t, horizon, values, value, p)
