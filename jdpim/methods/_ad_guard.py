@@ -1,6 +1,10 @@
-"""A warning raised when pathwise derivatives are taken through a grazing start, through the impacts of a
-system of several degrees of freedom (not validated), or through probabilities counted over sampled paths
-(zero).
+"""Guards on pathwise derivatives through the sampled pipeline: by mechanism, and in three static cases.
+
+By mechanism (:func:`probed`, around the simulation whenever it is traced): differentiated, each path's tangent
+is found by forward mode, so that reverse mode too can read the per-path contributions of whatever it
+differentiates and warn where few paths carry the derivative (``jdpim._tangents``); ``Result.pdf`` and
+``Result.moment`` read theirs in forward mode. Statically, whatever the numbers: a grazing start, the impacts of
+a system of several degrees of freedom (not validated), and probabilities counted over sampled paths (zero).
 
 Paths that start at rest on the barrier (the default start) graze it at once: the impact's saltation
 factor divides by an impact speed near zero, so the pathwise derivative of each path is dominated by
