@@ -103,6 +103,19 @@ def test_histogram_derivatives_warn(transform):
     assert float(d) == 0.0
 
 
+def test_the_pipeline_carries_the_check():
+    """Differentiated, ``jdpim.solve`` contracts forward-mode tangents (the primitive whose transpose checks on
+    the host): traced only, nothing compiled."""
+    scene = jdpim.Scene(jdpim.VibroImpactOscillator(), x0=0.5, t_end=0.2, dt=0.1)
+
+    def pdf(alpha):
+        res = jdpim.solve(jdpim.with_parameters(scene, {"alpha": alpha}), jdpim.MonteCarlo(n_samples=8))
+        return res.pdf("x", Y, bandwidth=H)
+
+    assert "jdpim_contract" in str(jax.make_jaxpr(jax.jacfwd(pdf))(0.03))
+    assert "debug_callback" in str(jax.make_jaxpr(jax.grad(pdf))(0.03))  # the transpose's check
+
+
 def test_values_are_unchanged_without_derivatives():
     rows = _paths(heavy=True)
     states = _result(jnp.float32(0.03), rows).states
