@@ -67,7 +67,12 @@ def fd_case():
                 ]
             )
 
-        ad = jax.jacfwd(pdfs)({k: jnp.asarray(v) for k, v in nominal.items()})
+        # 128 points carry these derivatives unevenly (a few paths' tangents grew across impacts), which the
+        # SensitivityWarning reports; they are the exact derivatives of the computed densities all the same,
+        # and that is what is checked here.
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", jdpim.SensitivityWarning)
+            ad = jax.jacfwd(pdfs)({k: jnp.asarray(v) for k, v in nominal.items()})
         fd = {}
         for name, value in nominal.items():
             h = 1e-4 * max(abs(value), 0.1)

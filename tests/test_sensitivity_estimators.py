@@ -81,11 +81,18 @@ def test_central_differences_with_common_random_numbers(free):
 def test_auto_and_the_result_object(free):
     scene, lr, _ = free
     assert set(lr) == {"alpha", "D"} and lr.value["D"].shape == XS.shape and lr.stderr["D"].shape == XS.shape
-    dp = jdpim.sensitivity(
-        scene, ("alpha",), "x", XS, bandwidth=H, method=jdpim.DPIM(points=jdpim.dpim_points(scene, 64))
-    )
+    dp = jdpim.sensitivity(scene, ("alpha",), "x", XS, bandwidth=H, method=jdpim.MonteCarlo(n_samples=4000))
     assert isinstance(dp.estimators["alpha"], Pathwise)  # no barrier: pathwise derivatives are exact and bounded
-    assert np.all(np.isnan(dp.stderr["alpha"]))
+    # Its standard error comes from the per-path contributions, like the other estimators'. Measured (4000
+    # paths): relative L2 error 0.10 against the exact derivative, standard error 0.081 of the norm, every grid
+    # point within 3 standard errors.
+    ref = _exact_derivative("alpha")
+    value, err = np.asarray(dp["alpha"]), np.asarray(dp.stderr["alpha"])
+    rel = np.linalg.norm(value - ref) / np.linalg.norm(ref)
+    rel_err = np.linalg.norm(err) / np.linalg.norm(ref)
+    assert 0 < rel_err < 0.15
+    assert rel < 3 * rel_err
+    assert np.mean(np.abs(value - ref) < 3 * err + 1e-3 * np.abs(ref).max()) > 0.9
 
 
 def test_joint_derivative_integrates_to_the_marginal(free):

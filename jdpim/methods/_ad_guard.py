@@ -1,6 +1,10 @@
-"""A warning raised when pathwise derivatives are taken through a grazing start, through the impacts of a
-system of several degrees of freedom (not validated), or through probabilities counted over sampled paths
-(zero).
+"""Guards on pathwise derivatives through the sampled pipeline: by mechanism, and in three static cases.
+
+By mechanism (:func:`probed`, around the simulation whenever it is traced): differentiated, each path's tangent
+is found by forward mode, so that reverse mode too can read the per-path contributions of whatever it
+differentiates and warn where few paths carry the derivative (``jdpim._tangents``); ``Result.pdf`` and
+``Result.moment`` read theirs in forward mode. Statically, whatever the numbers: a grazing start, the impacts of
+a system of several degrees of freedom (not validated), and probabilities counted over sampled paths (zero).
 
 Paths that start at rest on the barrier (the default start) graze it at once: the impact's saltation
 factor divides by an impact speed near zero, so the pathwise derivative of each path is dominated by
@@ -14,15 +18,17 @@ mode, also under ``jit``): values and cost are unchanged otherwise.
 from __future__ import annotations
 
 import functools
-import warnings
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from .._models import AbstractOscillator
 from .._pytree import concrete
 from .._scene import Scene
-from .._warnings import SensitivityWarning
+from .._tangents import contract, tangent_basis, watch
+
+MAX_DIRECTIONS = 32  # differentiated scalars beyond which reverse mode runs unprobed (plain AD, no check)
 
 GRAZING = (
     "pathwise derivatives through a start at rest on the barrier (a grazing impact) are biased: each path's "
@@ -63,12 +69,6 @@ INDICATOR = (
 )
 
 
-def watch(tree, message: str):
-    """``tree`` itself; differentiating through it warns ``message`` (``SensitivityWarning``)."""
-    leaves, treedef = jax.tree_util.tree_flatten(tree)
-    return jax.tree_util.tree_unflatten(treedef, _watched(message, leaves))
-
-
 def guard(scene: Scene) -> Scene:
     """``scene`` itself; differentiating through it warns (``SensitivityWarning``) when its paths start grazing,
     or when it has several degrees of freedom and constraints."""
@@ -81,12 +81,51 @@ def guard(scene: Scene) -> Scene:
     return watch(scene, message)
 
 
-@functools.partial(jax.custom_jvp, nondiff_argnums=(0,))
-def _watched(message, leaves):
-    return leaves
+def probed(run, scene: Scene, rows):
+    """``run(scene, rows)`` (per-path outputs, path axis first); differentiated, its per-path tangents are
+    found by forward mode, one direction per differentiated scalar of ``scene``, so that reverse mode can
+    check the per-path contributions of whatever it differentiates (``jdpim._tangents``).
+
+    Values and cost are unchanged when nothing is differentiated. Differentiated, the cost is that of
+    ``jax.jacfwd`` over those scalars (reverse mode then needs no backward pass through the steps); beyond
+    ``MAX_DIRECTIONS`` of them it is plain AD, unchecked in reverse mode.
+    """
+    leaves, treedef = jax.tree_util.tree_flatten(scene)
+    return _probed(run, treedef, leaves, rows)
 
 
-@_watched.defjvp
-def _watched_jvp(message, primals, tangents):
-    warnings.warn(message, SensitivityWarning, stacklevel=2)
-    return primals[0], tangents[0]
+@functools.partial(jax.custom_jvp, nondiff_argnums=(0, 1))
+def _probed(run, treedef, leaves, rows):
+    return run(jax.tree_util.tree_unflatten(treedef, leaves), rows)
+
+
+def _inexact(x) -> bool:
+    return jnp.issubdtype(jnp.result_type(x), jnp.inexact)
+
+
+def _probed_jvp(run, treedef, primals, tangents):
+    leaves, rows = primals
+    dots = tangents[0]
+    live = [i for i, (x, d) in enumerate(zip(leaves, dots, strict=True)) if _inexact(x) and not _zero(d)]
+
+    def f(live_leaves):
+        full = list(leaves)
+        for i, x in zip(live, live_leaves, strict=True):
+            full[i] = x
+        return run(jax.tree_util.tree_unflatten(treedef, full), rows)
+
+    live_leaves = [leaves[i] for i in live]
+    live_dots = [dots[i] for i in live]
+    basis, n_dir = tangent_basis(live_leaves)
+    if not live or n_dir > MAX_DIRECTIONS:
+        return jax.jvp(f, (live_leaves,), (live_dots,))
+    out, J = jax.vmap(lambda d: jax.jvp(f, (live_leaves,), (d,)), out_axes=(None, 0))(basis)
+    td = jnp.concatenate([jnp.reshape(d, (-1,)) for d in live_dots]).astype(J.dtype)
+    return out, jax.tree_util.tree_map(lambda j: contract(j, td), J)
+
+
+_probed.defjvp(_probed_jvp, symbolic_zeros=True)
+
+
+def _zero(d) -> bool:
+    return type(d) is jax.custom_derivatives.SymbolicZero or jnp.result_type(d) == jax.dtypes.float0

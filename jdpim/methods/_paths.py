@@ -27,7 +27,7 @@ from .._points import PointSet, select_points
 from .._pytree import check_int, concrete
 from .._scene import Scene, with_model_parameters
 from ..results._samples import Result
-from ._ad_guard import guard
+from ._ad_guard import guard, probed
 from ._base import AbstractMethod
 
 MEMORY_BUDGET = 512 * 2**20  # bytes of excitation work per chunk where the device does not report its memory
@@ -362,7 +362,8 @@ def run_paths(
     derivatives through that grazing impact are biased).
     """
     if _is_traced((scene, rows)):
-        return simulate(guard(scene), rows, kind=kind, chunk_size=chunk_size, track=track)
+        run = functools.partial(simulate, kind=kind, chunk_size=chunk_size, track=track)
+        return run(guard(scene), rows) if track is not None else probed(run, guard(scene), rows)
     local = functools.partial(
         _run_local,
         kind=kind,

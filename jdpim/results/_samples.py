@@ -10,8 +10,14 @@ import numpy as np
 
 from .._pytree import check_grid, check_points, check_real, concrete, plain, pytree_dataclass, static_field
 from .._scene import static_times
+from .._tangents import watch, watch_forward
 from . import _density
 from ._base import COORDINATES, AbstractResult
+
+HISTOGRAM = (
+    "the derivative of a histogram is zero: each path's bin is piecewise constant in the parameters; "
+    "differentiate Result.pdf (a kernel density) or use jdpim.sensitivity"
+)
 
 
 def reflection(bounds, var):
@@ -116,7 +122,9 @@ class Result(AbstractResult):
         check_points("grid", grid)
         y = self.samples(var, t)
         sigma = self._sigma(bandwidth, lambda: _density.bandwidth(y, self.weights, rule, dim=1))
-        return _density.kde(y, self.weights, jnp.asarray(grid), sigma, self._reflect(var))
+        grid, reflect = jnp.asarray(grid), self._reflect(var)
+        y = watch_forward(y, jax.tree_util.Partial(_kernel_contributions, self.weights, grid, sigma, reflect))
+        return _density.kde(y, self.weights, grid, sigma, reflect)
 
     def pdf_error(self, var, grid, t: float | None = None, *, bandwidth=None, rule: str = "chen"):
         r"""Sampling standard error of :meth:`pdf` (same arguments): Monte Carlo results only.
@@ -164,13 +172,14 @@ class Result(AbstractResult):
     def histogram(self, var, edges, t: float | None = None):
         """Weighted histogram density of ``var`` at time ``t`` on bin ``edges``; shape ``(len(edges) - 1,)``."""
         check_grid("edges", edges)
-        return _density.histogram(self.samples(var, t), self.weights, jnp.asarray(edges))
+        return _density.histogram(watch(self.samples(var, t), HISTOGRAM), self.weights, jnp.asarray(edges))
 
     def moment(self, var, order: int, t: float | None = None):
         """Weighted raw moment ``E[var^order]`` at time ``t`` over the paths with finite states."""
         y = self.samples(var, t)
         ok = jnp.isfinite(y)
         w = jnp.where(ok, self.weights, 0.0)
+        y = watch_forward(y, jax.tree_util.Partial(_moment_contributions, w, order))
         return jnp.sum(w * jnp.where(ok, y, 0.0) ** order) / jnp.sum(w)
 
     @staticmethod
@@ -180,6 +189,20 @@ class Result(AbstractResult):
         check_real("bandwidth", bandwidth, low=0.0, low_open=True)
         arr = concrete(bandwidth)
         return bandwidth if arr is None else jnp.asarray(arr)
+
+
+def _kernel_contributions(weights, grid, sigma, reflect, y, y_dot):
+    """Per-path contributions ``(N, G)`` to the forward-mode derivative of :meth:`Result.pdf`."""
+    ok = jnp.isfinite(y)
+    y = jnp.where(ok, y, 0.0)
+    dk = jax.jvp(lambda s: _density._kernel_matrix(jnp.atleast_1d(grid), s, sigma, reflect), (y,), (y_dot,))[1]
+    return jnp.where(ok[:, None], (weights[None, :] * dk).T, 0.0)
+
+
+def _moment_contributions(weights, order, y, y_dot):
+    """Per-path contributions ``(N,)`` to the forward-mode derivative of :meth:`Result.moment`."""
+    ok = jnp.isfinite(y)
+    return jnp.where(ok, weights * order * jnp.where(ok, y, 0.0) ** (order - 1) * y_dot, 0.0)
 
 
 def _pair(name: str, value) -> tuple:

@@ -13,8 +13,9 @@ deterministic points). ``K(y, Y)`` is the density's kernel (reflected at the bar
   ``dp/dD = -(1/2D) sum_j d_j(y_j p) + (gamma / D) dp/dgamma``, so ``c_i = Y_i . grad_Y K / (2 D) + gamma/D c_i^gamma``.
 - :class:`CentralDifference` (any parameter but ``barrier``; the default for ``r``): common random numbers,
   ``c_i = (K(y, Y_i(theta + d)) - K(y, Y_i(theta - d))) / 2d``.
-- :class:`Pathwise`: forward/reverse AD through the whole pipeline; exact for the computed density but its
-  tangents grow without bound across impacts, so trusted only over short horizons (a warning beyond).
+- :class:`Pathwise`: AD through the whole pipeline, ``c_i = grad_Y K(y, Y_i) . dY_i/dtheta``; exact for the
+  computed density but its tangents grow without bound across impacts, so trusted only over short horizons (a
+  warning beyond, and wherever few paths carry the derivative).
 
 Each estimator carries its own behaviour (:class:`AbstractEstimator`): ``check`` refuses a parameter or scene it
 does not apply to, ``scores_needed`` names the Girsanov score sums to accumulate along the common paths, and
@@ -36,10 +37,10 @@ import numpy as np
 from .._models import AbstractOscillator, Oscillator, VibroImpactOscillator
 from .._pytree import check_real, concrete
 from .._scene import get_parameter, set_parameter
+from .._tangents import STDERR_WARN
 from .._warnings import SensitivityWarning as SensitivityWarning
 
 DRIFT_EXCLUDED = ("r", "barrier", "D")
-STDERR_WARN = 0.25  # relative L2 standard error above which a sampled derivative is flagged
 
 
 class AbstractEstimator:
@@ -71,10 +72,15 @@ class AbstractEstimator:
 
 @dataclasses.dataclass(frozen=True)
 class Pathwise(AbstractEstimator):
-    """Differentiate the pipeline itself (``jax.jacfwd`` or ``jax.jacrev``): exact for the computed density.
+    """Differentiate the pipeline itself: exact for the computed density.
+
+    Forward mode gives each path's tangent at ``t``, so the derivative is a sum of per-path contributions
+    ``c_i = grad_Y K(y, Y_i) . dY_i/dtheta`` with a standard error like the other estimators'; a derivative carried
+    by few paths is flagged (``jdpim._tangents``).
 
     Args:
-        mode: ``"forward"`` (cheap for few parameters) or ``"reverse"``.
+        mode: ``"forward"`` (cheap for few parameters; with a standard error) or ``"reverse"`` (``jax.jacrev`` of
+            the density; no standard error: NaN).
         horizon: seconds (> 0) beyond which pathwise derivatives of a model with a barrier are not trusted
             (tangents grow across impacts: about 1e-5 relative error at t = 2, 6e-3 at t = 8, O(10) at t = 12);
             later times give a :class:`SensitivityWarning`.

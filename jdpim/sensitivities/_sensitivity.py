@@ -10,8 +10,9 @@ with per-path contributions ``c_i`` from an estimator per parameter (``jdpim.sen
 computes its own from the common paths of a :class:`PathContext`): a likelihood
 ratio (Girsanov score) for drift parameters, the exact noise scaling for ``D``, central differences with
 common random numbers for ``r``, or pathwise AD through the pipeline (exact for the computed density, but
-only over short horizons when there are impacts). ``estimator="auto"`` picks the pathwise derivative for
-models without a barrier (it is exact and bounded there) and otherwise the bounded estimators.
+only over short horizons when there are impacts; flagged where few paths carry it). ``estimator="auto"`` picks
+the pathwise derivative for models without a barrier (it is exact and bounded there) and otherwise the bounded
+estimators.
 docs/gradients.md says which to use when.
 
 Bandwidth: ``None`` uses the rule-based ``sigma`` at the nominal parameters, held fixed, so every estimator
@@ -34,9 +35,10 @@ from .._io import Persistent
 from .._models import AbstractOscillator
 from .._pytree import check_real, concrete, real_array
 from .._scene import Scene, parameter_names, parameter_value, with_parameters
+from .._tangents import effective_paths, warn_if_unreliable
 from ..methods._base import AbstractMethod
 from ..methods._monte_carlo import MonteCarlo
-from ..methods._paths import run_paths
+from ..methods._paths import _is_traced, run_paths
 from ..results._density import _kernel_matrix
 from ..results._density import bandwidth as rule_bandwidth
 from ..results._samples import Result
@@ -75,8 +77,8 @@ class Sensitivity(Persistent, Mapping):
 
     Attributes:
         value: ``{name: array}``, shaped like the PDF, in PDF units per parameter unit.
-        stderr: ``{name: array}`` of the same shapes: the sampling error (NaN for :class:`Pathwise`, which
-            does not estimate it; zero for path integration, which has none).
+        stderr: ``{name: array}`` of the same shapes: the sampling error (NaN for ``Pathwise(mode="reverse")``,
+            which does not estimate it; zero for path integration, which has none).
         estimators: ``{name: estimator}`` actually used (the ``PathIntegration`` settings for path integration).
         t: the time of the derivative, s (``inf`` for a stationary density).
         method: ``"path_integration"``, ``"dpim"`` or ``"monte_carlo"``.
@@ -109,16 +111,19 @@ class Sensitivity(Persistent, Mapping):
         return len(self.value)
 
 
-def _density(res: Result, var: str, grid, t, bandwidth, rule: str):
-    """The PDF of ``var`` on ``grid`` with the bandwidth policy of :func:`sensitivity`."""
+def _sigmas(res: Result, var: str, t, bandwidth, rule: str) -> list:
+    """The kernel standard deviations of :func:`sensitivity`'s bandwidth policy (one per axis of ``var``)."""
     dim = 2 if var == "xv" else 1
     names = ("x", "v") if var == "xv" else (var,)
     if bandwidth is None or bandwidth == "adaptive":
         sig = [res.bandwidth(n, t, rule, dim=dim) for n in names]
-        if bandwidth is None:
-            sig = [jax.lax.stop_gradient(s) for s in sig]
-    else:
-        sig = list(bandwidth) if var == "xv" else [bandwidth]
+        return [jax.lax.stop_gradient(s) for s in sig] if bandwidth is None else sig
+    return list(bandwidth) if var == "xv" else [bandwidth]
+
+
+def _density(res: Result, var: str, grid, t, bandwidth, rule: str):
+    """The PDF of ``var`` on ``grid`` with the bandwidth policy of :func:`sensitivity`."""
+    sig = _sigmas(res, var, t, bandwidth, rule)
     if var == "xv":
         return res.joint_pdf(("x", "v"), grid, t, bandwidth=tuple(sig))
     return res.pdf(var, grid, t, bandwidth=sig[0])
@@ -267,22 +272,33 @@ def sensitivity(
         ``.value``, ``.stderr``, ``.estimators`` and ``.method``. Path integration has no sampling error:
         its ``stderr`` is zero and ``estimators`` holds the ``PathIntegration`` settings used (its grid
         error, measured in docs/gradients.md, is about 1e-3 relative at the defaults). A
-        :class:`SensitivityWarning` flags pathwise results beyond their horizon or exploding, results
-        whose standard error exceeds a quarter of their size, non-finite path-integration derivatives,
-        transient ones within ``10 t0`` of the start (its linearised start density shows there) and ``dp/dD``
-        on a velocity grid too coarse for one step's diffusion; path integration's own
+        :class:`SensitivityWarning` flags pathwise results beyond their horizon, exploding or carried by few
+        paths, results whose standard error exceeds a quarter of their size, non-finite path-integration
+        derivatives, transient ones within ``10 t0`` of the start (its linearised start density shows there) and
+        ``dp/dD`` on a velocity grid too coarse for one step's diffusion; path integration's own
         ``PathIntegrationWarning`` reports its nominal grid.
+
+    Raises:
+        TypeError: under a JAX transformation (``jit``, ``vmap``, ``grad``): the method is picked and the
+            estimates checked on concrete values.
 
     Examples:
         >>> import jdpim, numpy as np
         >>> model = jdpim.VibroImpactOscillator(alpha=0.1, gamma=None, barrier=None)  # cheap to compile
         >>> scene = jdpim.Scene(model, noise=jdpim.WhiteNoise(D=0.05), t_end=2.0, dt=0.02)
-        >>> dp = jdpim.sensitivity(scene, ("alpha",), "v", np.linspace(-1.0, 1.0, 9), method=jdpim.DPIM(16))
-        >>> dp["alpha"].shape, type(dp.estimators["alpha"]).__name__
-        ((9,), 'Pathwise')
+        >>> grid = np.linspace(-1.0, 1.0, 9)
+        >>> dp = jdpim.sensitivity(scene, ("alpha",), "v", grid, method=jdpim.MonteCarlo(n_samples=2000))
+        >>> dp["alpha"].shape, type(dp.estimators["alpha"]).__name__, bool(np.all(dp.stderr["alpha"] > 0))
+        ((9,), 'Pathwise', True)
     """
     if not isinstance(scene, Scene):
         raise TypeError(f"scene must be a jdpim.Scene, got {type(scene).__name__}")
+    if isinstance(jnp.zeros(()), jax.core.Tracer) or _is_traced((scene, grid)):
+        raise TypeError(
+            "jdpim.sensitivity cannot run under a JAX transformation (jit, vmap, grad): it picks its method and "
+            "checks its estimates on concrete values; call it outside, or transform jdpim.solve or "
+            "jdpim.path_integration of jdpim.with_parameters(scene, ...) yourself"
+        )
     several = not isinstance(scene.model, AbstractOscillator)
     if var not in VARIABLES and not several:
         raise ValueError(f"var must be one of {VARIABLES}, got {var!r}")
@@ -345,7 +361,7 @@ def _default_method(scene: Scene, query: Query):
 
 def sampled_sensitivity(scene: Scene, method, query: Query):
     """``(value, stderr, estimators)`` from the paths of a sampling method (DPIM or Monte Carlo)."""
-    wrt, var, grid, t, bandwidth, rule = query.wrt, query.var, query.grid, query.t, query.bandwidth, query.rule
+    wrt, bandwidth = query.wrt, query.bandwidth
     estimators = _estimators(scene, wrt, query.estimator)
     if bandwidth == "adaptive" and not all(e.joint for e in estimators.values()):
         raise ValueError("bandwidth='adaptive' needs the Pathwise estimator for every parameter")
@@ -354,9 +370,9 @@ def sampled_sensitivity(scene: Scene, method, query: Query):
     value, stderr = {}, {}
     pathwise = [n for n in wrt if estimators[n].joint]
     if pathwise:
-        args = (var, grid, t, query.values, bandwidth, rule, kind, rows, weights, chunk)
-        value.update(_pathwise(scene, pathwise, estimators, *args))
-        stderr.update({n: jnp.full_like(value[n], jnp.nan) for n in pathwise})
+        v, e = _pathwise(scene, pathwise, estimators, query, kind, rows, weights, chunk)
+        value.update(v)
+        stderr.update(e)
     rest = [n for n in wrt if n not in pathwise]
     if rest:
         v, e = _sampled(scene, rest, estimators, query, kind, rows, weights, chunk)
@@ -367,29 +383,75 @@ def sampled_sensitivity(scene: Scene, method, query: Query):
     return value, stderr, estimators
 
 
-def _pathwise(scene, names, estimators, var, grid, t, values, bandwidth, rule, method, rows, weights, chunk):
-    """Pathwise derivatives through the pipeline (with the guard against exploding tangents)."""
-    est = estimators[names[0]]
+def _pathwise(scene, names, estimators, query: Query, method, rows, weights, chunk):
+    """``(value, stderr)`` of pathwise derivatives (with the guards against exploding tangents).
 
-    def pdf_of(vals):
-        s = with_parameters(scene, vals)
-        states = run_paths(s, rows, kind=method, chunk_size=chunk)
-        barrier = s.model.barrier if s.model.has_barrier else None
-        res = Result(
-            times=scene.save_at,
-            states=states,
-            weights=weights,
-            barrier=barrier,
-            method=method,
-        )
-        p = _density(res, var, grid, t, bandwidth, rule)
-        return p, p
-
-    jac = jax.jacfwd if est.mode == "forward" else jax.jacrev
+    Forward mode: each path's tangent ``dY_i/dtheta`` at ``t`` (one ``jax.jacfwd`` of the paths' states), so that
+    ``dp/dtheta = sum_i w_i c_i`` with ``c_i = dK(y, Y_i)/dY . dY_i/dtheta`` gives the standard error like the
+    other estimators (``bandwidth="adaptive"`` adds the rule's ``dsigma/dtheta`` term to the value, not to the
+    error). Reverse mode: ``jax.jacrev`` of the density, without a standard error (NaN).
+    """
+    var, grid, t, values, bandwidth, rule = query.var, query.grid, query.t, query.values, query.bandwidth, query.rule
+    barrier = scene.model.barrier if scene.model.has_barrier else None
     sub = {n: values[n] for n in names}
-    out, p = jac(pdf_of, has_aux=True)(sub)
-    pathwise_guard(scene.model.has_barrier, t, min(estimators[n].horizon for n in names), values, out, p)
-    return out
+    horizon = min(estimators[n].horizon for n in names)
+
+    def result(states):
+        return Result(times=scene.save_at, states=states, weights=weights, barrier=barrier, method=method)
+
+    def paths(vals):
+        s = run_paths(with_parameters(scene, vals), rows, kind=method, chunk_size=chunk)
+        return s, s
+
+    def density(states):
+        return _density(result(states), var, grid, t, bandwidth, rule)
+
+    if estimators[names[0]].mode == "reverse":
+        out, p = jax.jacrev(lambda vals: (density(paths(vals)[0]),) * 2, has_aux=True)(sub)
+        pathwise_guard(scene.model.has_barrier, t, horizon, values, out, p)
+        return out, {n: jnp.full_like(out[n], jnp.nan) for n in names}
+
+    tangents, states = jax.jacfwd(paths, has_aux=True)(sub)
+    res = result(states)
+    index = scene.time_index(t)
+    w, (x, v) = _finite_weights(weights, states[:, index, 0], states[:, index, 1])
+    p = density(states)
+    sigma = [jax.lax.stop_gradient(s) for s in _sigmas(res, var, t, bandwidth, rule)]  # "adaptive": its error
+    kern = _kernel(var, grid, sigma if var == "xv" else sigma[0], barrier)
+
+    def contribution(x, v, dx, dv):
+        return jax.jvp(kern, (x, v), (dx, dv))[1]
+
+    value, stderr = {}, {}
+    for n in names:
+        dx, dv = (jnp.where(w > 0, tangents[n][:, index, k], 0.0) for k in (0, 1))
+        value[n], stderr[n] = jax.jit(_moments, static_argnums=0)(contribution, (x, v, dx, dv), w)
+        n_eff = effective_paths(jax.jit(_squared_norms, static_argnums=0)(contribution, (x, v, dx, dv), w))
+        size = float(jnp.linalg.norm(value[n]))
+        warn_if_unreliable(w.shape[0], n_eff, float(jnp.linalg.norm(stderr[n])) / size if size > 0 else math.inf, 5)
+        if bandwidth == "adaptive":  # the rule's own derivative, through the same tangents
+            value[n] = jax.jvp(density, (states,), (tangents[n],))[1]
+    pathwise_guard(scene.model.has_barrier, t, horizon, values, value, p)
+    for n in names:
+        warn_if_noisy(n, value[n], stderr[n], stacklevel=5)
+    return value, stderr
+
+
+def _squared_norms(contribution, inputs, weights):
+    """``(N,)`` squared norms over the grid of the per-path contributions ``w_i c_i``, chunk by chunk."""
+    n = weights.shape[0]
+    size = min(_CHUNK, n)
+    pad = (-n) % size
+    chunks = jax.tree_util.tree_map(
+        lambda a: jnp.pad(a, [(0, pad)] + [(0, 0)] * (a.ndim - 1)).reshape(-1, size, *a.shape[1:]), (inputs, weights)
+    )
+
+    def one(chunk):
+        inp, w = chunk
+        c = contribution(*inp)
+        return jnp.sum((w.reshape((-1,) + (1,) * (c.ndim - 1)) * c) ** 2, axis=tuple(range(1, c.ndim)))
+
+    return jax.lax.map(one, chunks).reshape(-1)[:n]
 
 
 def pathwise_guard(has_barrier: bool, t: float, horizon: float, values: dict, derivatives: dict, pdf) -> None:
