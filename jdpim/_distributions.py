@@ -87,7 +87,7 @@ class TruncatedNormal:
     The law for a parameter with a bounded range: ``TruncatedNormal(0.03, 0.01, low=0.0)`` is a damping that
     is never negative. ``mean`` and ``std`` are the truncated law's own moments.
 
-    Example:
+    Examples:
         >>> import jdpim
         >>> float(jdpim.TruncatedNormal(0.0, 1.0, low=0.0).ppf(0.5)) > 0
         True
@@ -149,7 +149,7 @@ class TruncatedNormal:
 class LogNormal:
     """The law of ``exp(N(mu, sigma^2))``: positive, for a parameter that must exceed zero (a frequency, a mass).
 
-    Example:
+    Examples:
         >>> import jdpim
         >>> round(float(jdpim.LogNormal(0.0, 0.5).ppf(0.5)), 6)
         1.0
