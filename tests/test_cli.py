@@ -170,9 +170,11 @@ def test_run_scene_file_writes_only_what_it_asks(tmp_path, capsys):
     with np.load(tmp_path / "small.npz", allow_pickle=False) as npz:
         arrays = {k: npz[k] for k in npz.files}
     assert set(arrays) == {
-        "times", "x_grid", "monte_carlo_pdf_x", "monte_carlo_stderr_x", "monte_carlo_states",
+        "times", "x_grid", "monte_carlo_pdf_x", "monte_carlo_stderr_x", "monte_carlo_atoms_x", "monte_carlo_states",
         "monte_carlo_weights", "monte_carlo_nonfinite",
     }  # fmt: skip
+    assert arrays["monte_carlo_atoms_x"].shape == (2, 2)  # held at the barrier (sticking) and above it (no bound)
+    assert np.all(arrays["monte_carlo_atoms_x"][:, 1] == 0)
     assert arrays["monte_carlo_pdf_x"].shape == (2, 201) and arrays["monte_carlo_states"].shape == (64, 2, 2)
     integral = np.trapezoid(arrays["monte_carlo_pdf_x"][-1], arrays["x_grid"])
     assert 0.97 < integral <= 1.0 + 1e-4  # the grid holds 99.9 % of the samples
