@@ -270,6 +270,11 @@ def probability_table(times, levels, probability, stderr=None, quantity: str = "
     return markdown(rows, columns)
 
 
+def terminal(markdown_text: str) -> str:
+    """Markdown text as the terminal shows it: the bars a table escapes (``P(\\|x1\\| > 0.5)``) unescaped."""
+    return markdown_text.replace("\\|", "|")
+
+
 def write_csv(path: pathlib.Path, rows: list[dict], comment: str) -> None:
     """``rows`` as CSV, after a ``# comment`` line (the settings they were measured with)."""
     with path.open("w", newline="") as fh:
