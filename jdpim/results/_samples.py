@@ -97,9 +97,9 @@ class Result(AbstractResult):
             :meth:`bounds`), whose densities are reflected at both ends, with the probability held at a bound
             reported by :meth:`atoms`.
 
-    Results are pytrees (leaves: ``states``, ``weights``, ``barrier``): they pass through ``jax.jit`` and
-    ``jax.vmap`` as arguments and outputs. The interface is shared with ``jdpim.GridResult``
-    (``jdpim.results.AbstractResult``).
+    Results are pytrees (leaves: ``states``, ``weights``, ``barrier``, the constraints' positions and
+    restitutions): they pass through ``jax.jit`` and ``jax.vmap`` as arguments and outputs. The interface is
+    shared with ``jdpim.GridResult`` (``jdpim.results.AbstractResult``).
     """
 
     times: tuple = static_field()
