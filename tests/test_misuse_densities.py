@@ -10,6 +10,7 @@ import scipy.stats
 
 import jdpim
 from jdpim.results._density import _gauss, _interval_kernel
+from jdpim.results._samples import model_constraints
 
 C = 0.1  # the damper's clearance (jdpim.impact_damper's default)
 
@@ -128,7 +129,7 @@ def test_held_paths_are_atoms_not_density():
         ]
     )[:, None, :]
     weights = jnp.array([0.1, 0.15, 0.2, 0.25, 0.3])
-    res = jdpim.Result((1.0,), states, weights, None, "monte_carlo", damper.coordinates, damper.constraints)
+    res = jdpim.Result((1.0,), states, weights, None, "monte_carlo", damper.coordinates, model_constraints(damper))
     assert res.bounds(gap) == pytest.approx((-C, C)) and res.bounds("x1") == (None, None)
     np.testing.assert_allclose(np.asarray(res.atoms(gap)), [0.1, 0.15], rtol=1e-6)
     np.testing.assert_array_equal(np.asarray(jax.jit(lambda r: r.atoms(gap))(res)), np.asarray(res.atoms(gap)))
@@ -145,7 +146,8 @@ def test_one_degree_of_freedom_sticking_is_an_atom_at_the_barrier():
     passing the barrier (v != 0) is not. Built by hand: three paths, one resting, one on the barrier moving out."""
     states = jnp.array([[[0.5, 0.0]], [[0.5, 0.3]], [[1.2, -0.4]]])
     weights = jnp.array([0.2, 0.3, 0.5])
-    res = jdpim.Result((1.0,), states, weights, 0.5, "monte_carlo", constraints=(jdpim.Barrier((1.0,), 0.5, 0.5),))
+    model = jdpim.VibroImpactOscillator(barrier=0.5, r=0.5)
+    res = jdpim.Result((1.0,), states, weights, 0.5, "monte_carlo", constraints=model_constraints(model))
     assert res.bounds("x") == (0.5, None) and res.bounds("v") == (None, None)
     np.testing.assert_allclose(np.asarray(res.atoms("x")), [0.2, 0.0])
     g = np.linspace(0.5, 4.0, 3501)

@@ -8,7 +8,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._mdof import Barrier
 from .._pytree import check_grid, check_points, check_real, concrete, plain, pytree_dataclass, static_field
 from .._scene import static_times
 from . import _density
@@ -23,12 +22,26 @@ def reflection(bounds, var):
     return bounds if var == "x" else None
 
 
-def model_constraints(model) -> tuple:
-    """The unilateral constraints of ``model`` as a tuple of ``jdpim.Barrier`` (``n . q >= position``): those of a
-    ``jdpim.MDOFOscillator``, or the barrier of one degree of freedom as the normal ``(1,)``; ``()`` for none."""
-    if hasattr(model, "constraints"):
-        return tuple(model.constraints)
-    return () if model.bounds() is None else (Barrier((1.0,), model.barrier, model.r),)
+@pytree_dataclass
+class Planes:
+    """The unilateral constraints ``n_j . q >= b_j`` a result's quantities are bounded by.
+
+    Attributes:
+        normals: the normals ``n_j``, a tuple of ``J`` tuples of floats, one per position coordinate (static).
+        positions: the offsets ``b_j``, shape ``(J,)`` (a leaf: traced, batched by ``jax.vmap``).
+    """
+
+    normals: tuple = static_field(default=())
+    positions: Any = None
+
+
+def model_constraints(model) -> Planes | None:
+    """The constraints of ``model`` (``model.stacked_constraints()``: those of a ``jdpim.MDOFOscillator``, or the
+    barrier of one degree of freedom as the normal ``(1,)``) as :class:`Planes`; ``None`` for none."""
+    stacked = model.stacked_constraints()
+    if stacked is None:
+        return None
+    return Planes(tuple(tuple(float(a) for a in n) for n in np.asarray(stacked.normal)), stacked.position)
 
 
 _PROBES = (0.0, 0.375, -0.8125)  # states (scaled by 1, 2, ... per entry) at which a function is tested for linearity
@@ -58,16 +71,16 @@ def position_coefficients(var, coordinates: tuple, dtype) -> tuple[np.ndarray, f
     return grad[:d].astype(np.float64), float(values[0])
 
 
-def constraint_bounds(constraints: tuple, coefficients: np.ndarray, offset: float = 0.0) -> tuple:
+def constraint_bounds(planes: Planes, coefficients: np.ndarray, offset: float = 0.0) -> tuple:
     """``(lower, upper)`` of ``c . q + offset`` implied by the constraints ``n_j . q >= b_j`` whose normals are
     parallel to ``c`` (``None`` for a side without one; the tightest where several bound one side)."""
     lower = upper = None
-    for con in constraints:
-        n = np.asarray(con.normal, np.float64)
+    for j, normal in enumerate(planes.normals):
+        n = np.asarray(normal, np.float64)
         k = float(coefficients @ n / (n @ n))
         if k == 0 or np.max(np.abs(coefficients - k * n)) > 1e-12 * np.max(np.abs(coefficients)):
             continue
-        value = k * con.position + offset
+        value = k * planes.positions[j] + offset
         if k > 0:
             lower = value if lower is None else jnp.maximum(lower, value)
         else:
@@ -92,8 +105,8 @@ class Result(AbstractResult):
             Used where ``constraints`` is empty.
         method: ``"dpim"`` or ``"monte_carlo"``.
         coordinates: names of the state's entries, ``("x", "v")`` for one degree of freedom.
-        constraints: the model's unilateral constraints, a tuple of ``jdpim.Barrier`` (the barrier of one degree
-            of freedom as the normal ``(1,)``): they bound coordinates and derived quantities (see
+        constraints: the model's unilateral constraints as :class:`Planes` (the barrier of one degree of freedom
+            as the normal ``(1,)``), or ``None``: they bound coordinates and derived quantities (see
             :meth:`bounds`), whose densities are reflected at both ends, with the probability held at a bound
             reported by :meth:`atoms`.
 
@@ -108,12 +121,11 @@ class Result(AbstractResult):
     barrier: Any = None
     method: str = static_field(default="dpim")
     coordinates: tuple = static_field(default=COORDINATES)
-    constraints: tuple = ()
+    constraints: Planes | None = None
 
     def __post_init__(self):
         object.__setattr__(self, "times", static_times(self.times))
         object.__setattr__(self, "coordinates", tuple(self.coordinates))
-        object.__setattr__(self, "constraints", tuple(self.constraints))
 
     @property
     def n_paths(self) -> int:
@@ -133,7 +145,7 @@ class Result(AbstractResult):
         ``n . q >= b`` whose normal is parallel to its coefficients (see :func:`position_coefficients`); other
         quantities (velocities, nonlinear functions) have no known bounds: give ``bounds=`` to :meth:`pdf`.
         """
-        if not self.constraints:
+        if self.constraints is None:
             return reflection(self.barrier, var), None
         found = position_coefficients(var, self.coordinates, self.states.dtype)
         return (None, None) if found is None else constraint_bounds(self.constraints, *found)
