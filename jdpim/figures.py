@@ -60,8 +60,9 @@ def scene_title(alpha, gamma, r, D) -> str:
     return ", ".join(parts)
 
 
-def mass_range(samples, weights, *, q: float = 0.999, lower=None) -> tuple[float, float]:
-    """The interval holding the central ``q`` of the weighted samples (from ``lower`` when given).
+def mass_range(samples, weights, *, q: float = 0.999, lower=None, upper=None) -> tuple[float, float]:
+    """The interval holding the central ``q`` of the weighted samples (from ``lower`` and to ``upper``, the
+    bounds of the quantity, where given).
 
     Axes cut there show where the probability is. Non-finite samples are ignored.
     """
@@ -70,8 +71,12 @@ def mass_range(samples, weights, *, q: float = 0.999, lower=None) -> tuple[float
     y, w = y[ok], w[ok]
     order = np.argsort(y)
     y, cw = y[order], np.cumsum(w[order]) / np.sum(w)
+    if lower is not None and upper is not None:
+        return float(lower), float(upper)
     if lower is not None:
         return float(lower), float(np.interp(q, cw, y))
+    if upper is not None:
+        return float(np.interp(1 - q, cw, y)), float(upper)
     tail = (1 - q) / 2
     return float(np.interp(tail, cw, y)), float(np.interp(1 - tail, cw, y))
 

@@ -169,7 +169,11 @@ def test_run_scene_file_writes_only_what_it_asks(tmp_path, capsys):
     assert capsys.readouterr().err == ""  # --quiet: no progress lines
     with np.load(tmp_path / "small.npz", allow_pickle=False) as npz:
         arrays = {k: npz[k] for k in npz.files}
-    assert set(arrays) == {"times", "x_grid", "monte_carlo_pdf_x", "monte_carlo_stderr_x", "monte_carlo_nonfinite"}
+    assert set(arrays) == {
+        "times", "x_grid", "monte_carlo_pdf_x", "monte_carlo_stderr_x", "monte_carlo_atoms_x", "monte_carlo_nonfinite",
+    }  # fmt: skip
+    assert arrays["monte_carlo_atoms_x"].shape == (2, 2)  # held at the barrier (sticking) and above it (no bound)
+    assert np.all(arrays["monte_carlo_atoms_x"][:, 1] == 0)
     assert arrays["monte_carlo_pdf_x"].shape == (2, 201)
     res, saved = jdpim.load(tmp_path / "small_monte_carlo.npz", metadata=True)  # states = true: the whole result
     assert res.states.shape == (64, 2, 2) and saved.scene.model.gamma is None and saved.method.n_samples == 64
@@ -269,3 +273,22 @@ def test_main_job_reference_says_why_it_is_missing():
     lines = []
     assert report.reference(scene, jdpim.PathIntegration(), lines.append) is None
     assert "no path-integration reference: saved time 0.5 must be t0=1.0" in lines[-1]
+
+
+def test_terminal_tables_show_the_bars_the_markdown_escapes():
+    table = report.probability_table([1.0], [0.5], np.array([[0.25]]), quantity="|x1|")
+    assert "| t (s) | P(\\|x1\\| > 0.5) |" in table
+    assert "| t (s) | P(|x1| > 0.5) |" in report.terminal(table) and "\\" not in report.terminal(table)
+
+
+def test_figure_titles_count_degrees_of_freedom_not_filter_coordinates():
+    def title(model):
+        return report.scene_title(jdpim.Scene(model, noise=jdpim.WhiteNoise(D=0.01), t_end=1.0))
+
+    assert title(jdpim.impact_damper()).startswith("2 degrees of freedom, 2 constraints")
+    assert title(jdpim.kanai_tajimi(jdpim.impact_damper())).startswith(
+        "2 degrees of freedom and 1 filter coordinate (xf), 2 constraints"
+    )
+    assert title(jdpim.first_order_filter(jdpim.pounding_frame(n_storeys=1), a=2.0)).startswith(
+        "1 degree of freedom and 1 filter coordinate (xf), 1 constraint ("
+    )

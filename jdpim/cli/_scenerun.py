@@ -97,7 +97,7 @@ def run(sf: SceneFile, out: pathlib.Path, *, progress: bool = True, log=print) -
     if sf.reliability is not None:
         fp_arrays, fp_tables, fp_wall = first_passage(sf, progress=progress, log=log)
         arrays |= fp_arrays
-        log(fp_tables)
+        log(report.terminal(fp_tables))
         files.append(f"{stem}_first_passage.md")
         (out / files[-1]).write_text(f"# {sf.path.name}: first passage\n\n{fp_tables}\n")
     np.savez_compressed(out / files[0], **arrays)

@@ -12,6 +12,8 @@ from __future__ import annotations
 import csv
 import json
 import pathlib
+import platform
+import re
 import time
 
 import numpy as np
@@ -97,44 +99,58 @@ def lower_bounds(model) -> dict:
     return {name: float(b) for name, b in bounds.items()}
 
 
+def quantity_bounds(model, results, var) -> tuple:
+    """``(lower, upper)`` of ``var`` (a coordinate or a function of the state) as floats, ``None`` for a side
+    without a bound: the first sampling result's ``bounds(var)`` (from the model's constraints), else the
+    coordinate's lower bound (``lower_bounds``)."""
+    for res in results:
+        if hasattr(res, "bounds"):
+            return tuple(None if b is None else float(b) for b in res.bounds(var))
+    return (lower_bounds(model).get(var) if isinstance(var, str) else None), None
+
+
 def grids(scene, results, n_grid: int, names=None, q: float = 0.999) -> dict:
     """Grids of the coordinates ``names`` (default: every coordinate of the model), ``n_grid`` nodes each.
 
     Each covers the central ``q`` of the mass over every saved time and every sampling result
-    (``jdpim.Result``) of ``results``. A coordinate bounded from below (``x`` of a model with a barrier)
-    starts at its bound; velocities (the second half of ``scene.model.coordinates``) are symmetric about 0.
-    Returns ``{name: grid}`` in the order of ``names``.
+    (``jdpim.Result``) of ``results``. A coordinate bounded by a constraint (``x`` of a model with a barrier)
+    starts or ends at its bound (:func:`quantity_bounds`); velocities (the second half of
+    ``scene.model.coordinates``) are symmetric about 0. Returns ``{name: grid}`` in the order of ``names``.
     """
     coords = scene.model.coordinates
-    bounds = lower_bounds(scene.model)
     out = {}
     for name in coords if names is None else names:
-        i, lower = coords.index(name), bounds.get(name)
+        i = coords.index(name)
+        lower, upper = quantity_bounds(scene.model, results, name)
         ranges = []
         for res in results:
             y = np.asarray(res.states[..., i])
             w = np.broadcast_to(np.asarray(res.weights)[:, None], y.shape)
-            ranges.append(figures.mass_range(y, w, q=q, lower=lower))
+            ranges.append(figures.mass_range(y, w, q=q, lower=lower, upper=upper))
         if i >= len(coords) // 2:  # a velocity
             half = max(max(abs(a), abs(b)) for a, b in ranges)
             lo, hi = -half, half
         else:
             lo = lower if lower is not None else min(a for a, _ in ranges)
-            hi = max(b for _, b in ranges)
+            hi = upper if upper is not None else max(b for _, b in ranges)
         out[name] = np.linspace(lo, hi, n_grid)
     return out
 
 
 def quantity_grids(results, quantities: dict, times, n_grid: int, q: float = 0.999) -> dict:
     """Grids of functions of the state, ``{name: fn}`` (``fn``: state ``(n_state,)`` -> scalar), ``n_grid`` nodes
-    each, covering the central ``q`` of the mass over the saved ``times`` and every sampling result of ``results``."""
+    each, covering the central ``q`` of the mass over the saved ``times`` and every sampling result of ``results``,
+    from and to the bounds the model's constraints set (``Result.bounds``: a relative displacement spans its
+    clearance)."""
+    results = list(results)
     out = {}
     for name, fn in quantities.items():
+        lower, upper = quantity_bounds(None, results, fn)
         ranges = []
         for res in results:
             y = np.stack([np.asarray(res.samples(fn, t)) for t in times])
             w = np.broadcast_to(np.asarray(res.weights)[None, :], y.shape)
-            ranges.append(figures.mass_range(y, w, q=q))
+            ranges.append(figures.mass_range(y, w, q=q, lower=lower, upper=upper))
         out[name] = np.linspace(min(a for a, _ in ranges), max(b for _, b in ranges), n_grid)
     return out
 
@@ -181,8 +197,10 @@ def densities(results: dict, times, grids: dict, joints=None, joint_times=(), qu
 
     Returns:
         ``<name>_pdf_<var>``, shape ``(len(times), len(grid))``; ``<name>_stderr_<var>`` of the same shape
-        where the result has an error estimate (``pdf_error``); ``<name>_<joint_name(pair)>``, shape
-        ``(len(joint_times), len(grid_a), len(grid_b))``, for each pair of ``joints``.
+        where the result has an error estimate (``pdf_error``); ``<name>_atoms_<var>``, shape ``(len(times), 2)``,
+        the probability held at the lower and upper bound of a bounded ``var`` (``Result.atoms``; the density
+        leaves it out); ``<name>_<joint_name(pair)>``, shape ``(len(joint_times), len(grid_a), len(grid_b))``,
+        for each pair of ``joints``.
     """
     arrays = {}
     for name, res in results.items():
@@ -194,6 +212,8 @@ def densities(results: dict, times, grids: dict, joints=None, joint_times=(), qu
             arrays[f"{name}_pdf_{key}"] = np.stack([np.asarray(res.pdf(var, g, t)) for t in at])
             if _has_error(res):
                 arrays[f"{name}_stderr_{key}"] = np.stack([np.asarray(res.pdf_error(var, g, t)) for t in at])
+            if hasattr(res, "atoms") and any(b is not None for b in res.bounds(var)):
+                arrays[f"{name}_atoms_{key}"] = np.stack([np.asarray(res.atoms(var, t)) for t in at])
         for pair, pair_grids in (joints or {}).items():
             for var in pair:
                 _check_spread(res, var, joint_at)
@@ -235,6 +255,11 @@ def probability_table(times, levels, probability, stderr=None, quantity: str = "
     return markdown(rows, columns)
 
 
+def terminal(markdown_text: str) -> str:
+    """Markdown text as the terminal shows it: the bars a table escapes (``P(\\|x1\\| > 0.5)``) unescaped."""
+    return markdown_text.replace("\\|", "|")
+
+
 def write_csv(path: pathlib.Path, rows: list[dict], comment: str) -> None:
     """``rows`` as CSV, after a ``# comment`` line (the settings they were measured with)."""
     with path.open("w", newline="") as fh:
@@ -249,18 +274,40 @@ def write_json(path: pathlib.Path, data: dict) -> None:
     path.write_text(json.dumps(data, indent=2))
 
 
+FILTER_NAME = re.compile(r"x[fh]\d*")  # the coordinates jdpim.filters appends: xf, xf1, xf2, ... and xh
+
+
+def filter_coordinates(model) -> tuple[str, ...]:
+    """The trailing coordinates of ``model`` that are filters (``jdpim.kanai_tajimi``, ``first_order_filter``,
+    ``harmonic``): named as those functions name them and touched by no constraint."""
+    names = model.coordinates[: model.dimension]
+    touched = np.zeros(len(names), bool)
+    for c in model.constraints:
+        touched |= np.asarray(c.normal) != 0
+    k = 0
+    while k < len(names) - 1 and FILTER_NAME.fullmatch(names[-1 - k]) and not touched[-1 - k]:
+        k += 1
+    return names[len(names) - k :]
+
+
 def scene_title(scene) -> str:
     """The scene's parameters for a figure title: ``figures.scene_title`` for one degree of freedom; for
-    several the number of coordinates, the constraints' restitutions and ``D``."""
+    several the structure's degrees of freedom (filter coordinates named apart), the constraints' restitutions
+    and ``D``."""
     import jdpim
 
     model, D = scene.model, np.asarray(scene.noise.D)
     if not isinstance(model, jdpim.MDOFOscillator):
         return figures.scene_title(model.alpha, model.gamma, model.r, scene.noise.D)
-    parts = [f"{model.dimension} degrees of freedom"]
+    filters = filter_coordinates(model)
+    n = model.dimension - len(filters)
+    parts = [f"{n} degree{'s' if n > 1 else ''} of freedom"]
+    if filters:
+        parts[0] += f" and {len(filters)} filter coordinate{'s' if len(filters) > 1 else ''} ({', '.join(filters)})"
     if model.constraints:
         rs = ", ".join(f"{float(c.r):g}" for c in model.constraints)
-        parts.append(f"{len(model.constraints)} constraints ($r$ = {rs})")
+        j = len(model.constraints)
+        parts.append(f"{j} constraint{'s' if j > 1 else ''} ($r$ = {rs})")
     parts.append(f"$D = {float(D):g}$" if D.ndim == 0 else f"$D$: {D.shape[0]} x {D.shape[1]} matrix")
     return ", ".join(parts)
 
@@ -276,9 +323,15 @@ def labels(results: dict) -> dict:
 
 def curves(arrays: dict, labels: dict, var: str, i: int) -> list:
     """``figures.marginal``'s curves in row ``i`` of :func:`densities`: each result of ``labels`` (name ->
-    legend label, drawn in the style of its name) with its error band where it has one."""
-    rows = {n: (arrays[f"{n}_pdf_{var}"], arrays.get(f"{n}_stderr_{var}")) for n in labels}
-    return [(n, label, rows[n][0][i], None if rows[n][1] is None else rows[n][1][i]) for n, label in labels.items()]
+    legend label, drawn in the style of its name) with its error band where it has one; where a result holds
+    probability at the bounds of ``var`` (``<name>_atoms_<var>``), its label gives those masses."""
+    out = []
+    for n, label in labels.items():
+        se, atoms = arrays.get(f"{n}_stderr_{var}"), arrays.get(f"{n}_atoms_{var}")
+        if atoms is not None and np.any(atoms[i] > 0):
+            label = f"{label}; held at the bounds: {atoms[i][0]:.2g}, {atoms[i][1]:.2g}"
+        out.append((n, label, arrays[f"{n}_pdf_{var}"][i], None if se is None else se[i]))
+    return out
 
 
 def marginal_figure(grids: dict, times, panel_curves, title: str, *, title_size=None):

@@ -26,7 +26,7 @@ from .._integrate import WIDE_CHUNK, integrate
 from .._points import PointSet, select_points
 from .._pytree import check_int, concrete
 from .._scene import Scene, with_model_parameters
-from ..results._samples import Result
+from ..results._samples import Result, model_constraints
 from ._ad_guard import guard, probed
 from ._base import AbstractMethod
 
@@ -432,7 +432,8 @@ def _run_local(scene: Scene, rows, *, kind, chunk_size, block_size, devices, pro
 
 def _finish(scene: Scene, states, weights, method: str) -> Result:
     states = without_diverged(scene, states)
-    res = Result(scene.save_at, states, weights, scene.model.bounds(), method, scene.model.coordinates)
+    model = scene.model
+    res = Result(scene.save_at, states, weights, model.bounds(), method, model.coordinates, model_constraints(model))
     counts = concrete(res.n_nonfinite())
     if counts is not None and counts.any():
         warnings.warn(

@@ -2,4 +2,5 @@
 
 from ._base import AbstractResult as AbstractResult
 from ._grid import GridResult as GridResult
+from ._samples import Planes as Planes
 from ._samples import Result as Result

@@ -2,10 +2,13 @@ r"""Weighted kernel density estimates (the smoothed probability density integral
 
 .. math::  p_Y(y, t) = \sum_q P_q \, \mathcal{N}(y; y_q(t), \sigma^2)
 
-with the kernel reflected at the barrier ``b`` for the displacement,
-``N(x - x_q) + N(x + x_q - 2 b)`` on ``x >= b`` and zero below, so no probability leaks past it.
-Sums run over chunks of points (bounded memory). Paths with non-finite states get weight zero:
-their mass is missing from the density, never smeared into it (see ``Result.lost_mass``).
+with the kernel reflected at the bounds of the quantity, so no probability leaks past them: at a lower bound
+``a`` alone (the barrier of the displacement) ``N(y - y_q) + N(y + y_q - 2 a)`` on ``y >= a`` and zero below; in
+an interval ``[a, b]`` (a relative displacement within a clearance) the images of ``y_q`` in both ends and
+their images in turn, ``N(y - y_q) + N(y + y_q - 2 a) + N(y + y_q - 2 b) + N(y - y_q - 2 (b - a)) + ...``, on
+``[a, b]`` (mass 1 inside for any bandwidth; see :func:`_interval_kernel`). Sums run over chunks of points
+(bounded memory). Paths with non-finite states get weight zero: their mass is missing from the density, never
+smeared into it (see ``Result.lost_mass``).
 """
 
 from __future__ import annotations
@@ -14,8 +17,9 @@ import math
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
-from .._pytree import check_grid, check_points, check_real
+from .._pytree import check_grid, check_points, check_real, concrete, plain
 
 RULES = ("chen", "silverman", "scott")
 CHEN_C = 1.25  # constant c of Chen & Yang's rule; L1 errors vs exact solutions were lowest for c = 1-1.5 (README)
@@ -76,25 +80,86 @@ def bandwidth(samples, weights, rule: str = "chen", *, dim: int = 1, c: float | 
     return (1.06 * std * n ** (-0.2)) if dim == 1 else std * n ** (-1.0 / 6)
 
 
-def _check_kernel(grid_name, grid, sigma, barrier):
+def limits(barrier=None, bounds=None, name: str = "bounds") -> tuple:
+    """``(lower, upper)`` of a kernel from ``barrier`` (a lower bound) or ``bounds = (a, b)``; ``None`` for a side
+    without a bound (given as ``None`` or an infinite value). Concrete values are checked (``a < b``)."""
+    if bounds is None:
+        if barrier is not None:
+            check_real("barrier", barrier)
+        return barrier, None
+    if barrier is not None:
+        raise ValueError(f"give either barrier or {name}, not both (barrier={plain(barrier)!r}, {name}={bounds!r})")
+    if not isinstance(bounds, (tuple, list)) or len(bounds) != 2:
+        raise ValueError(f"{name} must be a pair (a, b), either side None for no bound, got {plain(bounds)!r}")
+    out = []
+    for side, value in zip(("lower", "upper"), bounds, strict=True):
+        arr = concrete(value)
+        if value is None or (arr is not None and arr.ndim == 0 and np.isinf(arr) and (arr < 0) == (side == "lower")):
+            out.append(None)
+            continue
+        check_real(f"{name} ({side})", value, scalar=True)
+        out.append(value)
+    lo, hi = (concrete(v) for v in out)
+    if lo is not None and hi is not None and not lo < hi:
+        raise ValueError(f"{name} must be a pair (a, b) with a < b, got {plain(bounds)!r}")
+    return tuple(out)
+
+
+def _check_kernel(grid_name, grid, sigma):
     """Validate concrete kernel arguments (tracers pass through)."""
     check_points(grid_name, grid)
     check_real("bandwidth", sigma, low=0.0, low_open=True)
-    if barrier is not None:
-        check_real("barrier", barrier)
 
 
 def _gauss(z):
     return jnp.exp(-0.5 * z * z) / math.sqrt(2.0 * math.pi)
 
 
-def _kernel_matrix(grid, samples, sigma, barrier):
-    """``K[g, q]``: kernel of point ``q`` at grid node ``g`` (reflected at ``barrier`` if given)."""
-    z = (grid[:, None] - samples[None, :]) / sigma
-    k = _gauss(z)
-    if barrier is not None:
-        k = k + _gauss((grid[:, None] + samples[None, :] - 2 * barrier) / sigma)
-        k = jnp.where(grid[:, None] >= barrier, k, 0.0)
+_IMAGES = 2  # interval kernel, sigma <= (b - a) / 2: images 2 k (b - a) apart for |k| <= _IMAGES (error < e^-50)
+_MODES = 5  # interval kernel, sigma > (b - a) / 2: cosine modes m <= _MODES (error < e^-44)
+
+
+def _interval_kernel(u, w, sigma, length):
+    r"""The Gaussian kernel of a point at ``w`` reflected at both ends of ``[0, length]``, at ``u`` (both in
+    ``[0, length]``; broadcast), unnormalised by ``sigma`` as in :func:`_kernel_matrix`.
+
+    The sum over all images, ``sum_k N(u - w + 2 k L) + N(u + w + 2 k L)``, taken directly where
+    ``sigma <= L / 2`` (the images nearer than ``10 sigma``) and as its Fourier series (Poisson's summation)
+    ``sigma / L (1 + 2 sum_m exp(-(pi m sigma / L)^2 / 2) cos(pi m u / L) cos(pi m w / L))`` where the bandwidth
+    is wider: both exact to rounding, so the kernel integrates to 1 over the interval for every bandwidth.
+    """
+
+    def image_pair(k, acc):  # the images 2 k L apart of the point and of its mirror in 0
+        shift = 2 * k * length
+        return acc + _gauss((u - w + shift) / sigma) + _gauss((u + w + shift) / sigma)
+
+    shape = jnp.broadcast_shapes(jnp.shape(u), jnp.shape(w))
+    direct = jax.lax.fori_loop(-_IMAGES, _IMAGES + 1, image_pair, jnp.zeros(shape, jnp.result_type(u, w, sigma)))
+    direct = direct + _gauss((u + w - 2 * (_IMAGES + 1) * length) / sigma)
+
+    def mode(m, acc):
+        c = jnp.pi * m
+        return acc + jnp.exp(-0.5 * (c * ratio) ** 2) * jnp.cos(c * u / length) * jnp.cos(c * w / length)
+
+    ratio = sigma / length
+    series = 1.0 + 2.0 * jax.lax.fori_loop(1, _MODES + 1, mode, jnp.zeros_like(direct))
+    return jnp.where(ratio <= 0.5, direct, ratio * series)
+
+
+def _kernel_matrix(grid, samples, sigma, lower=None, upper=None):
+    """``K[g, q]``: kernel of point ``q`` at grid node ``g``, reflected at ``lower`` and ``upper`` where given
+    (zero beyond them)."""
+    g, s = grid[:, None], samples[None, :]
+    if lower is not None and upper is not None:
+        k = _interval_kernel(g - lower, s - lower, sigma, upper - lower)
+        return jnp.where((g >= lower) & (g <= upper), k, 0.0) / sigma
+    k = _gauss((g - s) / sigma)
+    if lower is not None:
+        k = k + _gauss((g + s - 2 * lower) / sigma)
+        k = jnp.where(g >= lower, k, 0.0)
+    if upper is not None:
+        k = k + _gauss((g + s - 2 * upper) / sigma)
+        k = jnp.where(g <= upper, k, 0.0)
     return k / sigma
 
 
@@ -106,7 +171,7 @@ def _chunks(*arrays, size=_POINT_CHUNK):
     return tuple(jnp.pad(a, (0, pad)).reshape(-1, size) for a in arrays)
 
 
-def kde(samples, weights, grid, sigma, barrier=None):
+def kde(samples, weights, grid, sigma, barrier=None, *, bounds=None):
     """Weighted 1-D Gaussian KDE on ``grid``; shaped like ``grid`` (a scalar, or 1-D with one point or more).
 
     Args:
@@ -115,32 +180,43 @@ def kde(samples, weights, grid, sigma, barrier=None):
         grid: evaluation points: a scalar, or shape ``(G,)``, strictly increasing.
         sigma: kernel standard deviation (> 0).
         barrier: reflect the kernel at this position (density zero below it), or ``None``.
+        bounds: ``(a, b)``: the samples' range (``a < b``; either side ``None`` for no bound), the kernel
+            reflected at both ends and the density zero outside (instead of ``barrier``: ``(barrier, None)``).
+
+    Example:
+        >>> import jdpim, jax.numpy as jnp
+        >>> y = jnp.linspace(0.0, 1.0, 101)
+        >>> p = jdpim.kde(y, jnp.full(101, 1 / 101), jnp.linspace(0.0, 1.0, 1001), 0.3, bounds=(0.0, 1.0))
+        >>> round(float(jnp.trapezoid(p, dx=0.001)), 6)
+        1.0
     """
-    _check_kernel("grid", grid, sigma, barrier)
-    return _kde(jnp.asarray(samples), jnp.asarray(weights), jnp.asarray(grid), sigma, barrier)
+    _check_kernel("grid", grid, sigma)
+    lim = limits(barrier, bounds)
+    return _kde(jnp.asarray(samples), jnp.asarray(weights), jnp.asarray(grid), sigma, lim)
 
 
 @jax.jit
-def _kde(samples, weights, grid, sigma, barrier):
+def _kde(samples, weights, grid, sigma, lim):
     samples, weights = _clean(samples, weights)
     g = grid.astype(samples.dtype)
     flat = jnp.atleast_1d(g)
 
     def body(acc, chunk):
         s, w = chunk
-        return acc + _kernel_matrix(flat, s, sigma, barrier) @ w, None
+        return acc + _kernel_matrix(flat, s, sigma, *lim) @ w, None
 
     out, _ = jax.lax.scan(body, jnp.zeros(flat.shape, samples.dtype), _chunks(samples, weights))
     return out.reshape(g.shape)
 
 
-def kde_stderr(samples, weights, grid, sigma, barrier=None):
+def kde_stderr(samples, weights, grid, sigma, barrier=None, *, bounds=None):
     r"""Sampling standard error of :func:`kde` for independent samples, from the per-path kernel contributions.
 
     With ``p(y) = sum_q w_q K_q(y)`` and independent paths,
     ``se(y)^2 = n / (n - 1) * sum_q w_q^2 (K_q(y) - p(y))^2`` (``n`` paths with finite states); for equal
     weights ``1/n`` this is the sample variance of ``K_q(y)`` over ``n``. The bandwidth is held fixed (the
-    error of the smoothed density; the smoothing bias is not included). Shaped like ``grid``.
+    error of the smoothed density; the smoothing bias is not included). Shaped like ``grid``. ``barrier``,
+    ``bounds``: as in :func:`kde`.
 
     Examples:
         >>> import jdpim, jax.numpy as jnp
@@ -149,12 +225,13 @@ def kde_stderr(samples, weights, grid, sigma, barrier=None):
         >>> se.shape
         ()
     """
-    _check_kernel("grid", grid, sigma, barrier)
-    return _kde_stderr(jnp.asarray(samples), jnp.asarray(weights), jnp.asarray(grid), sigma, barrier)
+    _check_kernel("grid", grid, sigma)
+    lim = limits(barrier, bounds)
+    return _kde_stderr(jnp.asarray(samples), jnp.asarray(weights), jnp.asarray(grid), sigma, lim)
 
 
 @jax.jit
-def _kde_stderr(samples, weights, grid, sigma, barrier):
+def _kde_stderr(samples, weights, grid, sigma, lim):
     n = jnp.sum(jnp.isfinite(samples))
     samples, weights = _clean(samples, weights)
     g = grid.astype(samples.dtype)
@@ -162,7 +239,7 @@ def _kde_stderr(samples, weights, grid, sigma, barrier):
 
     def body(acc, chunk):
         s, w = chunk
-        k = _kernel_matrix(flat, s, sigma, barrier)
+        k = _kernel_matrix(flat, s, sigma, *lim)
         w2 = w * w
         return (acc[0] + k @ w, acc[1] + (k * k) @ w2, acc[2] + k @ w2, acc[3] + jnp.sum(w2)), None
 
@@ -172,20 +249,22 @@ def _kde_stderr(samples, weights, grid, sigma, barrier):
     return jnp.sqrt(jnp.maximum(var, 0.0)).reshape(g.shape)
 
 
-def kde_difference(lo, hi, weights, grid, sigma, barrier=None):
+def kde_difference(lo, hi, weights, grid, sigma, barrier=None, *, bounds=None):
     """Mean and standard error of the per-path kernel differences ``c_q(y) = K_q(y; hi_q) - K_q(y; lo_q)``.
 
     ``lo``, ``hi``: the same paths' values at two parameter values (common random numbers), ``(N,)``; a path
     non-finite at either end is left out. ``se(y)^2 = n / (n - 1) sum_q w_q^2 (c_q(y) - d(y))^2`` with
-    ``d = sum_q w_q c_q``. Returns ``(d, se)``, each shaped like ``grid``.
+    ``d = sum_q w_q c_q``. Returns ``(d, se)``, each shaped like ``grid``. ``barrier``, ``bounds``: as in
+    :func:`kde`.
     """
-    _check_kernel("grid", grid, sigma, barrier)
+    _check_kernel("grid", grid, sigma)
+    lim = limits(barrier, bounds)
     lo, hi, weights = jnp.asarray(lo), jnp.asarray(hi), jnp.asarray(weights)
-    return _kde_difference(lo, hi, weights, jnp.asarray(grid), sigma, barrier)
+    return _kde_difference(lo, hi, weights, jnp.asarray(grid), sigma, lim)
 
 
 @jax.jit
-def _kde_difference(lo, hi, weights, grid, sigma, barrier):
+def _kde_difference(lo, hi, weights, grid, sigma, lim):
     ok = jnp.isfinite(lo) & jnp.isfinite(hi)
     n = jnp.sum(ok)
     lo, hi, weights = (jnp.where(ok, a, 0.0) for a in (lo, hi, weights))
@@ -194,7 +273,7 @@ def _kde_difference(lo, hi, weights, grid, sigma, barrier):
 
     def body(acc, chunk):
         a, b, w = chunk
-        c = _kernel_matrix(flat, b, sigma, barrier) - _kernel_matrix(flat, a, sigma, barrier)
+        c = _kernel_matrix(flat, b, sigma, *lim) - _kernel_matrix(flat, a, sigma, *lim)
         w2 = w * w
         return (acc[0] + c @ w, acc[1] + (c * c) @ w2, acc[2] + c @ w2, acc[3] + jnp.sum(w2)), None
 
@@ -204,19 +283,22 @@ def _kde_difference(lo, hi, weights, grid, sigma, barrier):
     return d.reshape(g.shape), jnp.sqrt(jnp.maximum(var, 0.0)).reshape(g.shape)
 
 
-def kde_2d(x, v, weights, x_grid, v_grid, sigma_x, sigma_v, barrier=None):
-    """Weighted product-Gaussian KDE of ``(x, v)``, reflected in ``x``; shape ``(len(x_grid), len(v_grid))``.
+def kde_2d(x, v, weights, x_grid, v_grid, sigma_x, sigma_v, barrier=None, *, x_bounds=None, v_bounds=None):
+    """Weighted product-Gaussian KDE of ``(x, v)``; shape ``(len(x_grid), len(v_grid))``.
 
-    A scalar grid drops its axis (both scalars: a scalar).
+    A scalar grid drops its axis (both scalars: a scalar). Each factor is reflected at the bounds of its
+    quantity: ``barrier`` (a lower bound of ``x``) or ``x_bounds``, and ``v_bounds`` (pairs as ``bounds`` of
+    :func:`kde`).
     """
-    _check_kernel("x_grid", x_grid, sigma_x, barrier)
-    _check_kernel("v_grid", v_grid, sigma_v, None)
+    _check_kernel("x_grid", x_grid, sigma_x)
+    _check_kernel("v_grid", v_grid, sigma_v)
+    lim_x, lim_v = limits(barrier, x_bounds, "x_bounds"), limits(None, v_bounds, "v_bounds")
     args = (jnp.asarray(x), jnp.asarray(v), jnp.asarray(weights), jnp.asarray(x_grid), jnp.asarray(v_grid))
-    return _kde_2d(*args, sigma_x, sigma_v, barrier)
+    return _kde_2d(*args, sigma_x, sigma_v, lim_x, lim_v)
 
 
 @jax.jit
-def _kde_2d(x, v, weights, x_grid, v_grid, sigma_x, sigma_v, barrier):
+def _kde_2d(x, v, weights, x_grid, v_grid, sigma_x, sigma_v, lim_x, lim_v):
     ok = jnp.isfinite(x) & jnp.isfinite(v)
     x, v, weights = jnp.where(ok, x, 0.0), jnp.where(ok, v, 0.0), jnp.where(ok, weights, 0.0)
     shape = jnp.shape(x_grid) + jnp.shape(v_grid)
@@ -225,8 +307,8 @@ def _kde_2d(x, v, weights, x_grid, v_grid, sigma_x, sigma_v, barrier):
 
     def body(acc, chunk):
         xs, vs, w = chunk
-        kx = _kernel_matrix(x_grid, xs, sigma_x, barrier) * w[None, :]
-        kv = _kernel_matrix(v_grid, vs, sigma_v, None)
+        kx = _kernel_matrix(x_grid, xs, sigma_x, *lim_x) * w[None, :]
+        kv = _kernel_matrix(v_grid, vs, sigma_v, *lim_v)
         return acc + kx @ kv.T, None
 
     init = jnp.zeros((x_grid.shape[0], v_grid.shape[0]), x.dtype)

@@ -29,6 +29,72 @@ def reflection(bounds, var):
 
 
 @pytree_dataclass
+class Planes:
+    """The unilateral constraints ``n_j . q >= b_j`` a result's quantities are bounded by.
+
+    Attributes:
+        normals: the normals ``n_j``, a tuple of ``J`` tuples of floats, one per position coordinate (static).
+        positions: the offsets ``b_j``, shape ``(J,)`` (a leaf: traced, batched by ``jax.vmap``).
+    """
+
+    normals: tuple = static_field(default=())
+    positions: Any = None
+
+
+def model_constraints(model) -> Planes | None:
+    """The constraints of ``model`` (``model.stacked_constraints()``: those of a ``jdpim.MDOFOscillator``, or the
+    barrier of one degree of freedom as the normal ``(1,)``) as :class:`Planes`; ``None`` for none."""
+    stacked = model.stacked_constraints()
+    if stacked is None:
+        return None
+    return Planes(tuple(tuple(float(a) for a in n) for n in np.asarray(stacked.normal)), stacked.position)
+
+
+_PROBES = (0.0, 0.375, -0.8125)  # states (scaled by 1, 2, ... per entry) at which a function is tested for linearity
+
+
+def position_coefficients(var, coordinates: tuple, dtype) -> tuple[np.ndarray, float] | None:
+    """``(c, f0)`` with ``var(state) = c . q + f0`` (``q``: the positions, the first half of the state) where
+    ``var`` is a coordinate of ``q`` or a function of the state that is affine in ``q`` alone, else ``None``.
+
+    A function is evaluated (eagerly, also under ``jax.jit``) at three fixed probe states and differentiated at
+    the first; it is affine when its values there match its linearisation to rounding.
+    """
+    n, d = len(coordinates), len(coordinates) // 2
+    if isinstance(var, str):
+        i = coordinates.index(var)
+        return (np.eye(d)[i], 0.0) if i < d else None
+    with jax.ensure_compile_time_eval():
+        ramp = np.arange(1.0, n + 1.0) * np.where(np.arange(n) % 2, -1.0, 1.0)
+        probes = [jnp.asarray(a * ramp, dtype) for a in _PROBES]
+        grad = concrete(jax.grad(lambda s: jnp.asarray(var(s), dtype))(probes[0]))
+        values = [concrete(var(p)) for p in probes]
+    if grad is None or any(v is None or v.shape != () for v in values) or np.any(grad[d:] != 0):
+        return None
+    tol = 64 * np.finfo(dtype).eps * (1.0 + np.abs(grad) @ np.abs(np.asarray(probes[-1])) + abs(float(values[0])))
+    if any(abs(float(v) - float(values[0]) - grad @ np.asarray(p)) > tol for v, p in zip(values, probes, strict=True)):
+        return None
+    return grad[:d].astype(np.float64), float(values[0])
+
+
+def constraint_bounds(planes: Planes, coefficients: np.ndarray, offset: float = 0.0) -> tuple:
+    """``(lower, upper)`` of ``c . q + offset`` implied by the constraints ``n_j . q >= b_j`` whose normals are
+    parallel to ``c`` (``None`` for a side without one; the tightest where several bound one side)."""
+    lower = upper = None
+    for j, normal in enumerate(planes.normals):
+        n = np.asarray(normal, np.float64)
+        k = float(coefficients @ n / (n @ n))
+        if k == 0 or np.max(np.abs(coefficients - k * n)) > 1e-12 * np.max(np.abs(coefficients)):
+            continue
+        value = k * planes.positions[j] + offset
+        if k > 0:
+            lower = value if lower is None else jnp.maximum(lower, value)
+        else:
+            upper = value if upper is None else jnp.minimum(upper, value)
+    return lower, upper
+
+
+@pytree_dataclass
 class Result(AbstractResult):
     """Weighted response states of ``N`` paths (DPIM points or Monte Carlo samples).
 
@@ -42,12 +108,17 @@ class Result(AbstractResult):
         weights: probability of each path, shape ``(N,)``, summing to 1.
         barrier: barrier position (the displacement kernel is reflected there), or ``None``; for several
             degrees of freedom a mapping ``{coordinate: lower bound}`` of the coordinates a constraint bounds.
+            Used where ``constraints`` is empty.
         method: ``"dpim"`` or ``"monte_carlo"``.
         coordinates: names of the state's entries, ``("x", "v")`` for one degree of freedom.
+        constraints: the model's unilateral constraints as :class:`Planes` (the barrier of one degree of freedom
+            as the normal ``(1,)``), or ``None``: they bound coordinates and derived quantities (see
+            :meth:`bounds`), whose densities are reflected at both ends, with the probability held at a bound
+            reported by :meth:`atoms`.
 
-    Results are pytrees (leaves: ``states``, ``weights``, ``barrier``): they pass through ``jax.jit`` and
-    ``jax.vmap`` as arguments and outputs. The interface is shared with ``jdpim.GridResult``
-    (``jdpim.results.AbstractResult``).
+    Results are pytrees (leaves: ``states``, ``weights``, ``barrier``, the constraints' positions and
+    restitutions): they pass through ``jax.jit`` and ``jax.vmap`` as arguments and outputs. The interface is
+    shared with ``jdpim.GridResult`` (``jdpim.results.AbstractResult``).
     """
 
     times: tuple = static_field()
@@ -56,6 +127,7 @@ class Result(AbstractResult):
     barrier: Any = None
     method: str = static_field(default="dpim")
     coordinates: tuple = static_field(default=COORDINATES)
+    constraints: Planes | None = None
 
     def __post_init__(self):
         object.__setattr__(self, "times", static_times(self.times))
@@ -71,9 +143,83 @@ class Result(AbstractResult):
         at = self.states[:, self._index(t)]
         return jax.vmap(which)(at) if callable(which) else at[:, which]
 
-    def _reflect(self, var):
-        """Where the kernel of ``var`` is reflected (the barrier of ``x``, a bounded coordinate), or ``None``."""
-        return reflection(self.barrier, var)
+    def bounds(self, var):
+        """``(lower, upper)``: the range of ``var`` the model's constraints imply (``None`` for a side without one).
+
+        A coordinate, or a function of the state affine in the positions (e.g. the relative displacement
+        ``lambda s: s[1] - s[0]`` of ``jdpim.impact_damper()``: ``(-c, c)``), is bounded by each constraint
+        ``n . q >= b`` whose normal is parallel to its coefficients (see :func:`position_coefficients`); other
+        quantities (velocities, nonlinear functions) have no known bounds: give ``bounds=`` to :meth:`pdf`.
+        """
+        if self.constraints is None:
+            return reflection(self.barrier, var), None
+        found = position_coefficients(var, self.coordinates, self.states.dtype)
+        return (None, None) if found is None else constraint_bounds(self.constraints, *found)
+
+    def _limits(self, var, t, bounds):
+        """The kernel's ``(lower, upper)`` for ``var``: ``bounds`` (checked against the samples where concrete)
+        or :meth:`bounds`."""
+        if bounds is None:
+            return self.bounds(var)
+        lim = _density.limits(None, bounds)
+        y, held = concrete(self.samples(var, t)), [concrete(b) for b in lim]
+        if y is not None:
+            y = y[np.isfinite(y)]
+            tol = 64 * np.finfo(y.dtype).eps * np.max(np.abs(y), initial=1.0)
+            out = np.sum(y < held[0] - tol) if held[0] is not None else 0
+            out += np.sum(y > held[1] + tol) if held[1] is not None else 0
+            if out:
+                name = var if isinstance(var, str) else "the function"
+                raise ValueError(
+                    f"bounds={plain(bounds)!r} do not hold: {int(out)} of {y.size} samples of {name} lie outside"
+                )
+        return lim
+
+    def _held(self, var, t, lower, upper):
+        """``(N,)`` bools per bound: paths held at ``lower`` and at ``upper`` at ``t`` (``None`` where no bound).
+
+        Held: the value on the bound and its rate of change along the motion (``d var / dq . v``) zero, both to
+        rounding (``16 eps`` times the path's largest position or velocity): a path resting on a constraint,
+        not one passing through it.
+        """
+        at = self.states[:, self._index(t)]
+        d = at.shape[-1] // 2
+        q, v = at[:, :d], at[:, d:]
+        which = self._coordinate(var)
+        if callable(which):
+            tangent = jnp.concatenate([v, jnp.zeros_like(v)], axis=-1)
+            rate = jax.vmap(lambda s, ds: jax.jvp(which, (s,), (ds,))[1])(at, tangent)
+        else:
+            rate = at[:, which + d] if which < d else jnp.zeros(at.shape[0], at.dtype)
+        y, eps = self.samples(var, t), 16 * jnp.finfo(at.dtype).eps
+        still = jnp.abs(rate) <= eps * jnp.max(jnp.abs(v), axis=-1)
+        scale = jnp.max(jnp.abs(q), axis=-1)
+        return tuple(
+            None if b is None else still & (jnp.abs(y - b) <= eps * (jnp.abs(b) + scale)) for b in (lower, upper)
+        )
+
+    def _continuous(self, var, t, lower, upper, weights=None):
+        """``weights`` (default: the paths') with the paths held at a bound of ``var`` set to zero."""
+        weights = self.weights if weights is None else weights
+        for held in () if _unbounded((lower, upper)) else self._held(var, t, lower, upper):
+            if held is not None:
+                weights = jnp.where(held, 0.0, weights)
+        return weights
+
+    def atoms(self, var, t: float | None = None, *, bounds=None):
+        """Probability held at the bounds of ``var`` at ``t``: ``[at lower, at upper]``, shape ``(2,)``.
+
+        Paths resting on a constraint (sticking; a damper mass held against a wall) put a point mass at a bound
+        of the quantity the constraint bounds. :meth:`pdf` leaves it out and reports it here: the density
+        integrates to ``mass(t) - sum(atoms(var, t))``. ``bounds``: as in :meth:`pdf` (default
+        :meth:`bounds`); a side without a bound holds 0. Works under ``jax.jit``.
+        """
+        lim = self._limits(var, t, bounds)
+        at = self.samples(var, t)
+        ok = jnp.isfinite(at)
+        w = jnp.where(ok, self.weights, 0.0)
+        held = self._held(var, t, *lim)
+        return jnp.stack([jnp.zeros((), w.dtype) if h is None else jnp.sum(jnp.where(h & ok, w, 0.0)) for h in held])
 
     def n_nonfinite(self):
         """Number of paths with a non-finite state, per saved time; shape ``(S,)``."""
@@ -92,21 +238,30 @@ class Result(AbstractResult):
         return 1.0 - self.lost_mass()[self._index(t)]
 
     def bandwidth(self, var, t: float | None = None, rule: str = "chen", *, dim: int = 1, c: float | None = None):
-        """The rule-based kernel standard deviation for ``var`` at time ``t`` (see ``jdpim.bandwidth``)."""
-        return _density.bandwidth(self.samples(var, t), self.weights, rule, dim=dim, c=c)
+        """The rule-based kernel standard deviation for ``var`` at time ``t`` (see ``jdpim.bandwidth``), of the
+        paths not held at a bound of ``var`` (:meth:`atoms`): the one :meth:`pdf` uses."""
+        w = self._continuous(var, t, *self.bounds(var))
+        return _density.bandwidth(self.samples(var, t), w, rule, dim=dim, c=c)
 
-    def pdf(self, var, grid, t: float | None = None, *, bandwidth=None, rule: str = "chen"):
+    def pdf(self, var, grid, t: float | None = None, *, bandwidth=None, rule: str = "chen", bounds=None):
         r"""Marginal PDF of ``var`` at saved time ``t`` on ``grid``.
 
-        ``p(y) = sum_q P_q N(y; y_q, sigma^2)``, reflected at the barrier for ``"x"``.
+        ``p(y) = sum_q P_q K(y; y_q)``: Gaussian kernels of standard deviation ``sigma``, reflected at the bounds
+        of ``var`` (both ends of an interval, with the images of images where ``sigma`` is comparable to its
+        width; ``jdpim.kde``), zero outside them. Paths held at a bound (:meth:`atoms`) are left out: their
+        probability is a point mass there, not a density, and ``pdf`` integrates to
+        ``mass(t) - sum(atoms(var, t))``.
 
         Args:
-            var: a coordinate name (``"x"``: displacement, ``"v"``: velocity) or a function of the state
-                (its kernel is not reflected).
+            var: a coordinate name (``"x"``: displacement, ``"v"``: velocity) or a function of the state.
             grid: evaluation points: a scalar or 1-D (one point or more), strictly increasing.
             t: a saved time, s (may be left out when the result holds one).
             bandwidth: kernel standard deviation (> 0), or ``None`` to use ``rule``.
             rule: bandwidth rule, one of ``"chen"``, ``"silverman"``, ``"scott"``.
+            bounds: ``(a, b)``, the range of ``var`` (either side ``None`` for no bound), or ``None`` for the
+                range the model's constraints imply (:meth:`bounds`: the barrier of ``"x"``, a coordinate or a
+                function affine in the positions that a constraint bounds, e.g. a relative displacement within a
+                clearance). Given bounds are checked against the samples (outside them: ``ValueError``).
 
         Returns:
             array shaped like ``grid``.
@@ -120,13 +275,14 @@ class Result(AbstractResult):
             jax.grad(f)(0.03)
         """
         check_points("grid", grid)
-        y = self.samples(var, t)
-        sigma = self._sigma(bandwidth, lambda: _density.bandwidth(y, self.weights, rule, dim=1))
-        grid, reflect = jnp.asarray(grid), self._reflect(var)
-        y = watch_forward(y, jax.tree_util.Partial(_kernel_contributions, self.weights, grid, sigma, reflect))
-        return _density.kde(y, self.weights, grid, sigma, reflect)
+        lim = self._limits(var, t, bounds)
+        y, w = self.samples(var, t), self._continuous(var, t, *lim)
+        sigma = self._sigma(bandwidth, lambda: _density.bandwidth(y, w, rule, dim=1))
+        grid = jnp.asarray(grid)
+        y = watch_forward(y, jax.tree_util.Partial(_kernel_contributions, w, grid, sigma, lim))
+        return _density.kde(y, w, grid, sigma, bounds=lim)
 
-    def pdf_error(self, var, grid, t: float | None = None, *, bandwidth=None, rule: str = "chen"):
+    def pdf_error(self, var, grid, t: float | None = None, *, bandwidth=None, rule: str = "chen", bounds=None):
         r"""Sampling standard error of :meth:`pdf` (same arguments): Monte Carlo results only.
 
         From the per-path kernel contributions ``K_q(y)``: ``se(y)^2 = sum_q K_q(y)^2 / n^2 - p(y)^2 / n``
@@ -140,12 +296,16 @@ class Result(AbstractResult):
                 f"{self.method!r}; for DPIM use jdpim.dpim_replicates"
             )
         check_points("grid", grid)
-        y = self.samples(var, t)
-        sigma = self._sigma(bandwidth, lambda: _density.bandwidth(y, self.weights, rule, dim=1))
-        return _density.kde_stderr(y, self.weights, jnp.asarray(grid), sigma, self._reflect(var))
+        lim = self._limits(var, t, bounds)
+        y, w = self.samples(var, t), self._continuous(var, t, *lim)
+        sigma = self._sigma(bandwidth, lambda: _density.bandwidth(y, w, rule, dim=1))
+        return _density.kde_stderr(y, w, jnp.asarray(grid), sigma, bounds=lim)
 
-    def joint_pdf(self, vars, grids, t: float | None = None, *, bandwidth=None, rule: str = "chen"):
+    def joint_pdf(self, vars, grids, t: float | None = None, *, bandwidth=None, rule: str = "chen", bounds=None):
         """Joint PDF of two quantities at saved time ``t``; shape ``(len(grids[0]), len(grids[1]))``.
+
+        Each kernel factor is reflected at the bounds of its quantity, and paths held at a bound of either
+        quantity (:meth:`atoms`) are left out, as in :meth:`pdf`.
 
         Args:
             vars: a pair of coordinate names or functions of the state, e.g. ``("x", "v")``.
@@ -153,21 +313,26 @@ class Result(AbstractResult):
             t: a saved time, s (may be left out when the result holds one).
             bandwidth: ``None`` (rule-based, 2-D exponent) or a pair ``(sigma_1, sigma_2)``.
             rule: bandwidth rule for ``None``.
+            bounds: ``None`` (each quantity's :meth:`bounds`) or a pair of ranges, each ``(a, b)`` or ``None``
+                (that quantity's :meth:`bounds`), as ``bounds`` of :meth:`pdf`.
         """
         (va, vb), (ga, gb) = _pair("vars", vars), _pair("grids", grids)
         for name, g in (("grids[0]", ga), ("grids[1]", gb)):
             check_points(name, g)
+        ba, bb = (None, None) if bounds is None else _pair("bounds", bounds)
+        lim_a, lim_b = self._limits(va, t, ba), self._limits(vb, t, bb)
         a, b = self.samples(va, t), self.samples(vb, t)
+        w = self._continuous(vb, t, *lim_b, self._continuous(va, t, *lim_a))
         if bandwidth is None:
-            sa = _density.bandwidth(a, self.weights, rule, dim=2)
-            sb = _density.bandwidth(b, self.weights, rule, dim=2)
+            sa = _density.bandwidth(a, w, rule, dim=2)
+            sb = _density.bandwidth(b, w, rule, dim=2)
         else:
             if np.ndim(bandwidth) != 1 or len(bandwidth) != 2:
                 raise ValueError(f"bandwidth must be None or a pair (sigma_1, sigma_2), got {plain(bandwidth)!r}")
             sa, sb = (self._sigma(s, None) for s in bandwidth)
-        if self._reflect(vb) is not None and self._reflect(va) is None:  # the reflected quantity goes first
-            return _density.kde_2d(b, a, self.weights, jnp.asarray(gb), jnp.asarray(ga), sb, sa, self._reflect(vb)).T
-        return _density.kde_2d(a, b, self.weights, jnp.asarray(ga), jnp.asarray(gb), sa, sb, self._reflect(va))
+        if _unbounded(lim_a) and not _unbounded(lim_b):  # the bounded quantity goes first
+            return _density.kde_2d(b, a, w, jnp.asarray(gb), jnp.asarray(ga), sb, sa, x_bounds=lim_b).T
+        return _density.kde_2d(a, b, w, jnp.asarray(ga), jnp.asarray(gb), sa, sb, x_bounds=lim_a, v_bounds=lim_b)
 
     def histogram(self, var, edges, t: float | None = None):
         """Weighted histogram density of ``var`` at time ``t`` on bin ``edges``; shape ``(len(edges) - 1,)``."""
@@ -191,11 +356,11 @@ class Result(AbstractResult):
         return bandwidth if arr is None else jnp.asarray(arr)
 
 
-def _kernel_contributions(weights, grid, sigma, reflect, y, y_dot):
+def _kernel_contributions(weights, grid, sigma, lim, y, y_dot):
     """Per-path contributions ``(N, G)`` to the forward-mode derivative of :meth:`Result.pdf`."""
     ok = jnp.isfinite(y)
     y = jnp.where(ok, y, 0.0)
-    dk = jax.jvp(lambda s: _density._kernel_matrix(jnp.atleast_1d(grid), s, sigma, reflect), (y,), (y_dot,))[1]
+    dk = jax.jvp(lambda s: _density._kernel_matrix(jnp.atleast_1d(grid), s, sigma, *lim), (y,), (y_dot,))[1]
     return jnp.where(ok[:, None], (weights[None, :] * dk).T, 0.0)
 
 
@@ -203,6 +368,11 @@ def _moment_contributions(weights, order, y, y_dot):
     """Per-path contributions ``(N,)`` to the forward-mode derivative of :meth:`Result.moment`."""
     ok = jnp.isfinite(y)
     return jnp.where(ok, weights * order * jnp.where(ok, y, 0.0) ** (order - 1) * y_dot, 0.0)
+
+
+def _unbounded(lim) -> bool:
+    """Whether a kernel's ``(lower, upper)`` has no bound on either side."""
+    return lim[0] is None and lim[1] is None
 
 
 def _pair(name: str, value) -> tuple:
