@@ -82,7 +82,7 @@ def _classes() -> dict[str, type]:
         jdpim.Result, jdpim.GridResult, jdpim.FirstPassage, jdpim.ImpactStatistics, jdpim.Sensitivity,
         jdpim.Scene, jdpim.VibroImpactOscillator, jdpim.Oscillator, jdpim.MDOFOscillator, jdpim.Barrier,
         jdpim.WhiteNoise, jdpim.SpectralRepresentation, jdpim.GaussianNodes, jdpim.ImpactRule, jdpim.Substeps,
-        jdpim.Normal, jdpim.Uniform, jdpim.PointSet,
+        jdpim.Normal, jdpim.Uniform, jdpim.TruncatedNormal, jdpim.LogNormal, jdpim.PointSet, jdpim.results.Planes,
         jdpim.DPIM, jdpim.MonteCarlo, jdpim.PathIntegration, jdpim.SubsetSimulation,
         jdpim.Pathwise, jdpim.LikelihoodRatio, jdpim.NoiseScaling, jdpim.CentralDifference,
     )  # fmt: skip

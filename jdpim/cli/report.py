@@ -12,7 +12,6 @@ from __future__ import annotations
 import csv
 import json
 import pathlib
-import platform
 import re
 import time
 
