@@ -12,6 +12,10 @@ from . import systems as systems
 from ._cpu import use_cpu_cores as use_cpu_cores
 from ._distributions import Normal as Normal
 from ._distributions import Uniform as Uniform
+from ._envelopes import ShinozukaSato as ShinozukaSato
+from ._excitation import AbstractExcitation as AbstractExcitation
+from ._excitation import AbstractNodes as AbstractNodes
+from ._excitation import ArrayNodes as ArrayNodes
 from ._excitation import GaussianNodes as GaussianNodes
 from ._excitation import SpectralRepresentation as SpectralRepresentation
 from ._integrate import ImpactRule as ImpactRule
