@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 import jdpim
+from jdpim import _report as report
 from jdpim import cli
-from jdpim.cli import report
 from jdpim.cli._scenefile import SceneFileError, load
 
 EXAMPLE = pathlib.Path(__file__).parents[1] / "examples" / "reference.toml"

@@ -154,7 +154,7 @@ def _paper_parser(sub) -> None:
 def run(args) -> dict:
     """The main job. Returns the summary it also writes to ``<out>/summary.json``."""
     import jdpim
-    from jdpim.cli import report
+    from jdpim import _report as report
     from jdpim.cli._scenefile import excitation_of
 
     if max(args.save_at) > args.t_end:
@@ -235,8 +235,8 @@ SHORT = {"dpim": "dpim", "monte_carlo": "mcs", "reference": "path integration"} 
 
 
 def _run_scene(args) -> dict:
+    from jdpim._report import logger
     from jdpim.cli import _scenefile, _scenerun
-    from jdpim.cli.report import logger
 
     sf = _scenefile.load(args.scene_file)
     return _scenerun.run(sf, args.out, progress=not args.quiet, log=logger(args.quiet))
@@ -244,8 +244,8 @@ def _run_scene(args) -> dict:
 
 def _paper(args) -> dict:
     from jdpim import paper
+    from jdpim._report import logger
     from jdpim.cli._scenefile import excitation_of
-    from jdpim.cli.report import logger
 
     settings = paper.QUICK if args.quick else paper.FULL
     settings = settings.with_overrides(n_points=args.points, n_samples=args.samples, replicates=args.replicates)

@@ -17,7 +17,7 @@ import time
 
 import numpy as np
 
-from .. import figures, metrics
+from . import figures, metrics
 
 NAME = {**figures.NAME, "reference": "path integration"}  # legends and panel titles
 
