@@ -320,6 +320,54 @@ class Modulated(AbstractNodes):
         return tuple(x * jnp.asarray(self.envelope(t0 + i * (0.5 * self.dt)), x.dtype) for i, x in enumerate(e)), carry
 
 
+@pytree_dataclass
+class Clock(AbstractNodes):
+    """``nodes`` with the time appended as a last column, ``(n, m + 1)`` per node: the time channel of models whose
+    acceleration depends on ``t`` (:class:`Clocked`). The quadratic through the three node times of a step is the
+    time itself inside the step (to rounding), so impacts and sub-steps read their own time."""
+
+    nodes: AbstractNodes
+    dt: float = static_field()
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        n, m = self.nodes.shape
+        return n, m + 1
+
+    def start(self):
+        return self.nodes.start()
+
+    def step(self, k, carry):
+        e, carry = self.nodes.step(k, carry)
+        t0 = k * self.dt
+        return tuple(
+            jnp.concatenate([x, jnp.full((x.shape[0], 1), t0 + i * (0.5 * self.dt), x.dtype)], axis=1)
+            for i, x in enumerate(e)
+        ), carry
+
+
+@dataclasses.dataclass(frozen=True)
+class Clocked:
+    """A time-dependent ``model`` as the integrator sees it: the time is the last entry of its forcing (:class:`Clock`),
+    handed to ``model.state_acceleration_at(t, q, v, xi)``."""
+
+    model: object
+
+    def state_acceleration(self, q, v, xi):
+        return self.model.state_acceleration_at(xi[-1], q, v, xi[:-1])
+
+    def stacked_constraints(self):
+        return self.model.stacked_constraints()
+
+    @property
+    def dimension(self) -> int:
+        return self.model.dimension
+
+    @property
+    def may_be_stiff(self) -> bool:
+        return self.model.may_be_stiff
+
+
 def modulate(nodes: AbstractNodes, envelope: Callable | None, dt: float) -> AbstractNodes:
     """``nodes`` under the noise's ``envelope`` (``None``: unmodulated, ``nodes`` itself)."""
     return nodes if envelope is None else Modulated(nodes, envelope, dt)

@@ -23,7 +23,7 @@ import numpy as np
 
 from .._cpu import host_memory, on_cpu
 from .._distributions import elementary_ppf
-from .._excitation import AbstractExcitation, modulate
+from .._excitation import AbstractExcitation, Clock, Clocked, modulate
 from .._integrate import WIDE_CHUNK, integrate
 from .._points import PointSet, select_points
 from .._pytree import check_int, concrete
@@ -150,12 +150,16 @@ def integrate_forcing(scene: Scene, excitation, rand, track=None):
     """
     dtype = scene.float_dtype
     excitation = modulate(excitation, scene.noise.envelope, scene.dt)
+    clocked = scene.model.time_dependent  # the time reaches the model as the forcing's last column
+    if clocked:
+        excitation = Clock(excitation, scene.dt)
     names = tuple(name for name, _ in scene.random)
     model_names = tuple(n for n in names if n not in ("x0", "v0"))
     model_cols = jnp.asarray([names.index(n) for n in model_names], dtype=jnp.int32)
 
     def path_model(r):
-        return scene.model if r is None else with_model_parameters(scene.model, model_names, r[model_cols])
+        model = scene.model if r is None else with_model_parameters(scene.model, model_names, r[model_cols])
+        return Clocked(model) if clocked else model
 
     shape = (rand.shape[0], scene.model.dimension)
     x_start, v_start = scene.initial_state()

@@ -300,6 +300,8 @@ def check_likelihood_ratio(scene, name: str) -> None:
     if scene.n_sources != 1:
         raise ValueError(f"LikelihoodRatio needs one noise source, the scene has {scene.n_sources}")
     scene.noise.require_stationary("LikelihoodRatio (its score divides by D)", "use CentralDifference")
+    if scene.model.time_dependent:
+        raise ValueError("LikelihoodRatio needs a model whose forces do not depend on the time; use CentralDifference")
     if any(n == name for n, _ in scene.random):
         raise ValueError(f"parameter {name!r} is random in this scene; use CentralDifference")
     D = concrete(scene.noise.D)
@@ -366,6 +368,8 @@ def noise_scaling_applies(scene) -> str | None:
         return "the noise has several sources"
     if scene.noise.envelope is not None:
         return "the noise is modulated (its intensity varies in time)"
+    if m.time_dependent:
+        return "the model's forces depend on the time"
     return None
 
 
