@@ -1,4 +1,11 @@
-r"""Spectral representation of white noise, generated for all paths at once with FFTs.
+r"""Excitations: how the white noise reaches the integrator's nodes.
+
+:class:`AbstractExcitation` is what every method asks of an excitation (its elementary random inputs, the forcing
+of a batch of paths), :class:`AbstractNodes` what the integrator reads (the forcing of every step at its start,
+middle and end). Two excitations implement them: :class:`GaussianNodes` (independent normals at the nodes, drawn
+inside the steps) and :class:`SpectralRepresentation`, below.
+
+Spectral representation of white noise, generated for all paths at once with FFTs.
 
 .. math::
     \xi(t) = \sqrt{S_0 \Delta\omega}\,X_0

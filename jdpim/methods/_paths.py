@@ -195,8 +195,7 @@ def pad_rows(rows, pad: int):
 
 
 def _simulate(scene: Scene, rows, *, kind: str, chunk_size: int, track=None):
-    if kind not in ("dpim", "monte_carlo"):
-        raise ValueError(f"kind must be 'dpim' or 'monte_carlo', got {kind!r}")
+    SamplingMethod.named(kind)  # an unknown kind fails here, in one line
     n = rows.shape[0]
     pad = (-n) % chunk_size
     padded = pad_rows(rows, pad)
