@@ -31,8 +31,8 @@ class WhiteNoise:
         >>> import jdpim
         >>> jdpim.WhiteNoise(D=0.03).n_sources
         1
-        >>> round(float(jdpim.WhiteNoise(D=0.03, envelope=jdpim.ShinozukaSato(0.1, 0.5)).intensity(4.0)), 4)
-        0.0299
+        >>> round(float(jdpim.WhiteNoise(D=0.03, envelope=jdpim.ShinozukaSato(0.1, 0.5)).intensity(1.0)), 4)
+        0.0093
     """
 
     D: Any = 0.03
