@@ -1,4 +1,11 @@
-r"""Spectral representation of white noise, generated for all paths at once with FFTs.
+r"""Excitations: how the white noise reaches the integrator's nodes.
+
+:class:`AbstractExcitation` is what every method asks of an excitation (its elementary random inputs, the forcing
+of a batch of paths), :class:`AbstractNodes` what the integrator reads (the forcing of every step at its start,
+middle and end). Two excitations implement them: :class:`GaussianNodes` (independent normals at the nodes, drawn
+inside the steps) and :class:`SpectralRepresentation`, below.
+
+Spectral representation of white noise, generated for all paths at once with FFTs.
 
 .. math::
     \xi(t) = \sqrt{S_0 \Delta\omega}\,X_0
@@ -21,23 +28,93 @@ an offset on each side, because the representation is spiky near multiples of it
 
 from __future__ import annotations
 
+import abc
 import dataclasses
 import math
+from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._distributions import ANGLE
 from ._normals import normals
-from ._pytree import check_int, check_real
+from ._pytree import check_int, check_real, pytree_dataclass, static_field
 
 _SQRT2 = math.sqrt(2.0)
 RANDOM_FUNCTIONS = ("cosine", "rayleigh")
 CUTOFF_STEP = 2.0  # default cutoff times dt
 
 
+class AbstractNodes(abc.ABC):
+    """The forcing of a batch of ``n`` paths at the integrator's nodes, step by step.
+
+    Every RK4 step ``k`` (from ``t = k dt`` to ``(k + 1) dt``) reads the forcing at its start, middle and end
+    (the quadratic through them is the forcing inside the step); ``carry`` is whatever one step hands the next
+    (drawn values, or nothing). Subclasses are pytrees of arrays (they enter jitted code).
+    """
+
+    @property
+    @abc.abstractmethod
+    def shape(self) -> tuple[int, int]:
+        """``(n, m)``: paths and noise sources."""
+
+    @abc.abstractmethod
+    def start(self):
+        """The carry before step 0."""
+
+    @abc.abstractmethod
+    def step(self, k, carry):
+        """``(e, carry)``: the forcing of step ``k`` (traced int) at its start, middle and end, a tuple of three
+        ``(n, m)`` arrays, and the carry to step ``k + 1``."""
+
+
+class AbstractExcitation(abc.ABC):
+    r"""How the white noise of a scene is generated at the integrator's nodes (static settings, hashable).
+
+    The scene's :class:`jdpim.WhiteNoise` is the physics (intensity ``D``, an optional envelope); an excitation
+    is the numerical representation of its unit-envelope part. A method reads one through these calls:
+
+    - ``check(scene)``: raise ``ValueError`` where the scene's time grid does not suit it (at scene construction);
+    - ``input_distributions(n_sources)``: the elementary random variables of one path (DPIM's input space),
+      or a ``ValueError`` saying why it has none;
+    - ``from_inputs(scene, theta)``: the forcing (:class:`AbstractNodes`) of paths given their elementary
+      variables ``theta`` ``(n, k)`` (DPIM);
+    - ``from_keys(scene, keys)``: the forcing of paths given their noise keys ``(n, 2)`` (Monte Carlo);
+    - ``values_per_path(scene)``: forcing values one path holds in memory (0 where drawn inside the steps:
+      chunk sizes follow from it);
+    - ``from_normals(scene, z)`` (optional): the forcing of standard normals at the nodes (subset simulation).
+
+    The envelope of a modulated noise (``WhiteNoise(envelope=...)``) multiplies whatever forcing an excitation
+    gives (:func:`modulate`), so an excitation knows nothing of it.
+    """
+
+    @abc.abstractmethod
+    def check(self, scene) -> None: ...
+
+    @abc.abstractmethod
+    def input_distributions(self, n_sources: int) -> tuple: ...
+
+    @abc.abstractmethod
+    def from_inputs(self, scene, theta) -> AbstractNodes: ...
+
+    @abc.abstractmethod
+    def from_keys(self, scene, keys) -> AbstractNodes: ...
+
+    @abc.abstractmethod
+    def values_per_path(self, scene) -> int: ...
+
+    def from_normals(self, scene, z) -> AbstractNodes:
+        """The forcing of independent standard normals ``z`` ``(n, 2 T + 1, m)``, one per node and source (subset
+        simulation's input space), where the excitation has such a form."""
+        raise ValueError(
+            f"{type(self).__name__} has no input space of normals at the nodes (subset simulation samples them): "
+            "use Scene(..., excitation=jdpim.GaussianNodes()) or the default, excitation=None"
+        )
+
+
 @dataclasses.dataclass(frozen=True)
-class SpectralRepresentation:
+class SpectralRepresentation(AbstractExcitation):
     r"""Settings of the band-limited spectral representation (static: they fix array shapes).
 
     Args:
@@ -115,9 +192,39 @@ class SpectralRepresentation:
             random_functions=self.random_functions,
         )
 
+    def check(self, scene) -> None:
+        """The cutoff must lie below the Nyquist frequency of the stage grid."""
+        self.grid(scene.t_end, scene.dt)
+
+    def input_distributions(self, n_sources: int) -> tuple:
+        """``(Theta1, Theta2)`` per source, each uniform on ``[-pi, pi)``."""
+        return (ANGLE,) * (2 * n_sources)
+
+    def from_inputs(self, scene, theta) -> ArrayNodes:
+        """The forcing of the random functions of ``theta`` ``(n, 2 m)``, by one FFT."""
+        grid = self.grid(scene.t_end, scene.dt)
+        mixing = scene.noise.mixing().astype(scene.float_dtype)
+        coeffs = jax.vmap(lambda t: random_function_coefficients(t, grid, mixing))(theta)
+        return ArrayNodes(synthesize(coeffs, grid).astype(scene.float_dtype))
+
+    def from_keys(self, scene, keys) -> ArrayNodes:
+        """The forcing of Gaussian coefficients drawn from each path's key ``(n, 2)``, by one FFT."""
+        grid = self.grid(scene.t_end, scene.dt)
+        dtype = scene.float_dtype
+        mixing = scene.noise.mixing().astype(dtype)
+
+        def coefficients(key):
+            return gaussian_coefficients(jax.random.wrap_key_data(key), scene.n_sources, grid, mixing, dtype)
+
+        return ArrayNodes(synthesize(jax.vmap(coefficients)(keys), grid).astype(dtype))
+
+    def values_per_path(self, scene) -> int:
+        """The excitation over the FFT grid, for every source."""
+        return scene.n_sources * self.grid(scene.t_end, scene.dt).n_fft
+
 
 @dataclasses.dataclass(frozen=True)
-class GaussianNodes:
+class GaussianNodes(AbstractExcitation):
     r"""White noise as independent Gaussian values at the RK4 nodes, drawn inside the integration (Monte Carlo).
 
     Args:
@@ -146,14 +253,135 @@ class GaussianNodes:
     def __post_init__(self):
         check_int("block", self.block, low=1)
 
-    def node_source(self, keys, mixing, dt: float, dtype) -> NodeSource:
-        """The forcing of the ``n`` paths with noise key data ``keys`` ``(n, 2)`` (a :class:`NodeSource`)."""
-        scale = (math.sqrt(18.0 / (5.0 * dt)) * mixing).astype(dtype)
-        return NodeSource(keys, scale, self.block, dtype)
+    def check(self, scene) -> None:
+        """Any time grid suits it."""
+
+    def input_distributions(self, n_sources: int) -> tuple:
+        raise ValueError(
+            "DPIM needs the spectral representation (Scene(excitation=None), the default, or "
+            "jdpim.SpectralRepresentation(...)): its random functions of two variables per source; GaussianNodes "
+            "is for Monte Carlo"
+        )
+
+    def from_inputs(self, scene, theta) -> AbstractNodes:
+        self.input_distributions(scene.n_sources)  # raises: no elementary variables of a few dimensions
+
+    def from_keys(self, scene, keys) -> NodeSource:
+        """The forcing of the ``n`` paths with noise key data ``keys`` ``(n, 2)``, drawn inside the steps."""
+        dtype = scene.float_dtype
+        return NodeSource(keys, node_scale(scene.noise.mixing().astype(dtype), scene.dt, dtype), self.block, dtype)
+
+    def values_per_path(self, scene) -> int:
+        """None: the nodes are drawn inside the steps."""
+        return 0
+
+    def from_normals(self, scene, z) -> ArrayNodes:
+        """The forcing of standard normals ``z`` ``(n, 2 T + 1, m)`` at the half-step nodes (subset simulation's
+        input space): ``sqrt(18 / (5 dt)) L z``."""
+        dtype = scene.float_dtype
+        scale = node_scale(scene.noise.mixing(), scene.dt, dtype)
+        return ArrayNodes(jnp.einsum("ij,ntj->tni", scale, z.astype(dtype)))
+
+
+def node_scale(mixing, dt: float, dtype):
+    """``sqrt(18 / (5 dt)) L``, ``(m, m)``: the scale of unit normals at the half-step nodes that gives RK4's
+    Simpson-weighted increment the white noise's variance ``2 D dt`` per step (:class:`GaussianNodes`)."""
+    return (math.sqrt(18.0 / (5.0 * dt)) * mixing).astype(dtype)
+
+
+@pytree_dataclass
+class ArrayNodes(AbstractNodes):
+    """The forcing held as one array over the half-step grid, time-major ``(2 T + 1, n, m)``."""
+
+    values: jax.Array
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.values.shape[1:]
+
+    def start(self):
+        return ()
+
+    def step(self, k, carry):
+        return tuple(jax.lax.dynamic_index_in_dim(self.values, 2 * k + i, keepdims=False) for i in range(3)), ()
+
+
+@pytree_dataclass
+class Modulated(AbstractNodes):
+    """``nodes`` multiplied by ``envelope(t)`` at the node times ``t = k dt + i dt / 2`` (``i = 0, 1, 2``)."""
+
+    nodes: AbstractNodes
+    envelope: Callable = static_field()
+    dt: float = static_field()
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.nodes.shape
+
+    def start(self):
+        return self.nodes.start()
+
+    def step(self, k, carry):
+        e, carry = self.nodes.step(k, carry)
+        t0 = k * self.dt
+        return tuple(x * jnp.asarray(self.envelope(t0 + i * (0.5 * self.dt)), x.dtype) for i, x in enumerate(e)), carry
+
+
+@pytree_dataclass
+class Clock(AbstractNodes):
+    """``nodes`` with the time appended as a last column, ``(n, m + 1)`` per node: the time channel of models whose
+    acceleration depends on ``t`` (:class:`Clocked`). The quadratic through the three node times of a step is the
+    time itself inside the step (to rounding), so impacts and sub-steps read their own time."""
+
+    nodes: AbstractNodes
+    dt: float = static_field()
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        n, m = self.nodes.shape
+        return n, m + 1
+
+    def start(self):
+        return self.nodes.start()
+
+    def step(self, k, carry):
+        e, carry = self.nodes.step(k, carry)
+        t0 = k * self.dt
+        return tuple(
+            jnp.concatenate([x, jnp.full((x.shape[0], 1), t0 + i * (0.5 * self.dt), x.dtype)], axis=1)
+            for i, x in enumerate(e)
+        ), carry
 
 
 @dataclasses.dataclass(frozen=True)
-class NodeSource:
+class Clocked:
+    """A time-dependent ``model`` as the integrator sees it: the time is the last entry of its forcing (:class:`Clock`),
+    handed to ``model.state_acceleration_at(t, q, v, xi)``."""
+
+    model: object
+
+    def state_acceleration(self, q, v, xi):
+        return self.model.state_acceleration_at(xi[-1], q, v, xi[:-1])
+
+    def stacked_constraints(self):
+        return self.model.stacked_constraints()
+
+    @property
+    def dimension(self) -> int:
+        return self.model.dimension
+
+    @property
+    def may_be_stiff(self) -> bool:
+        return self.model.may_be_stiff
+
+
+def modulate(nodes: AbstractNodes, envelope: Callable | None, dt: float) -> AbstractNodes:
+    """``nodes`` under the noise's ``envelope`` (``None``: unmodulated, ``nodes`` itself)."""
+    return nodes if envelope is None else Modulated(nodes, envelope, dt)
+
+
+@pytree_dataclass
+class NodeSource(AbstractNodes):
     """Gaussian forcing values at the half-step nodes of ``n`` paths, drawn on demand (see :class:`GaussianNodes`).
 
     Node 0 of a path comes from its key folded with 0; the middle and end nodes of the steps ``b B .. b B + B - 1``
@@ -164,8 +392,22 @@ class NodeSource:
 
     keys: jax.Array  # (n, 2) key data
     scale: jax.Array  # (m, m)
-    block: int
-    dtype: object
+    block: int = static_field()
+    dtype: object = static_field()
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.keys.shape[0], self.scale.shape[0]
+
+    def start(self):
+        """Node 0 and the first block of steps."""
+        return self.first(), self.steps(0)
+
+    def step(self, k, carry):
+        e_start, drawn = carry
+        drawn = jax.lax.cond((k % self.block == 0) & (k > 0), lambda: self.steps(k // self.block), lambda: drawn)
+        mid_end = jax.lax.dynamic_index_in_dim(drawn, k % self.block, axis=0, keepdims=False)
+        return (e_start, mid_end[0], mid_end[1]), (mid_end[1], drawn)
 
     def _draw(self, counter, shape):
         """``(*shape[:-1], n, m)``: the path's normals of ``shape`` (last axis ``m``), key folded with ``counter``."""

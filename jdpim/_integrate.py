@@ -53,6 +53,7 @@ import numpy as np
 
 from ._constraints import dot, geometry, values
 from ._cpu import on_cpu
+from ._excitation import AbstractNodes, ArrayNodes
 from ._pytree import check_int, check_real
 
 
@@ -978,8 +979,8 @@ def integrate(
         rule: impact settings.
         h: time step, s.
         q0, v0: initial coordinates and velocities, shape ``(n, d)``.
-        excitation: ``xi`` on the half-step grid, time-major, shape ``(2 T + 1, n, m)``; or a function
-            :class:`jdpim._excitation.NodeSource` that draws them inside the steps (:class:`jdpim.GaussianNodes`).
+        excitation: the forcing of the paths at the nodes (:class:`jdpim._excitation.AbstractNodes`), or ``xi`` on
+            the half-step grid, time-major, shape ``(2 T + 1, n, m)``.
         rand: random parameters per path, shape ``(n, n_random)``.
         slots: shape ``(T,)`` int: the save slot written after each step (``n_save`` = none).
         n_save: number of saved times. Slot ``n_save`` is a scratch row.
@@ -993,30 +994,14 @@ def integrate(
     """
     step = jax.checkpoint(make_batch_step(path_model, rule, h, substeps))
     T = slots.shape[0]
-    if not hasattr(excitation, "shape"):  # a NodeSource: drawn inside the steps, block by block
-        block = excitation.block
-        e_first = (excitation.first(), excitation.steps(0))
-        n, m = e_first[0].shape
-
-        def nodes(k, carry):
-            """The forcing of step ``k`` at its start, middle and end, each ``(n, m)``; the carry to the next."""
-            e_start, drawn = carry
-            drawn = jax.lax.cond((k % block == 0) & (k > 0), lambda: excitation.steps(k // block), lambda: drawn)
-            mid_end = jax.lax.dynamic_index_in_dim(drawn, k % block, axis=0, keepdims=False)
-            return (e_start, mid_end[0], mid_end[1]), (mid_end[1], drawn)
-
-    else:
-        e_first = ()
-        _, n, m = excitation.shape
-
-        def nodes(k, e_start):
-            """The forcing of step ``k``: the excitation at its start, middle and end, each ``(n, m)``."""
-            return tuple(jax.lax.dynamic_index_in_dim(excitation, 2 * k + i, keepdims=False) for i in range(3)), ()
+    nodes = excitation if isinstance(excitation, AbstractNodes) else ArrayNodes(excitation)
+    e_first = nodes.start()
+    n, m = nodes.shape
 
     def body(carry, inputs):
         q, v, buf, e_start = carry
         k, slot = inputs
-        e, e_next = nodes(k, e_start)
+        e, e_next = nodes.step(k, e_start)
         q, v = step(q, v, e, rand)
         buf = jax.lax.dynamic_update_index_in_dim(buf, jnp.concatenate([q, v], axis=-1), slot, axis=0)
         return (q, v, buf, e_next), e

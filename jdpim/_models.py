@@ -32,13 +32,24 @@ class AbstractSystem:
 
     ``dimension`` (``n``), ``coordinates`` (``2 n`` names: coordinates then velocities), ``n_sources``,
     ``state_acceleration(q, v, xi) -> (n,)``, ``stacked_constraints() -> Constraints | None``, ``has_barrier``
-    and ``may_be_stiff`` (whether sub-stepping is traced when the scene asks for it).
+    and ``may_be_stiff`` (whether sub-stepping is traced when the scene asks for it). A model whose forces depend
+    on the time overrides ``time_dependent`` and ``state_acceleration_at(t, q, v, xi)``.
     """
 
     @property
     def may_be_stiff(self) -> bool:
         """Whether the model has terms that can make explicit RK4 unstable (then sub-stepping is traced)."""
         return True
+
+    @property
+    def time_dependent(self) -> bool:
+        """Whether the acceleration depends on the time: the integrator then calls :meth:`state_acceleration_at`."""
+        return False
+
+    def state_acceleration_at(self, t, q, v, xi):
+        """The acceleration ``(n,)`` at time ``t`` (s) of one path; ``state_acceleration(q, v, xi)`` unless the model
+        overrides it (with ``time_dependent``), e.g. for a deterministic load ``f(t)``."""
+        return self.state_acceleration(q, v, xi)
 
     def replace(self, **changes):
         """A copy with fields replaced, e.g. ``model.replace(alpha=0.05)``."""

@@ -1,33 +1,46 @@
-r"""Gaussian white noise ``E[xi_k(t) xi_l(t + s)] = 2 D_kl delta(s)``."""
+r"""Gaussian white noise ``E[xi_k(t) xi_l(t + s)] = 2 D_kl delta(s)``, optionally modulated in time by an envelope."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._pytree import check_real, concrete, pytree_dataclass
+from ._pytree import check_real, concrete, pytree_dataclass, static_field
 
 
 @pytree_dataclass
 class WhiteNoise:
     r"""Zero-mean Gaussian white noise with intensity matrix ``D``: ``E[xi(t) xi(t+s)^T] = 2 D delta(s)``.
 
+    With an envelope ``e(t)`` the noise is uniformly modulated, ``e(t) xi(t)``: its intensity at ``t`` is
+    ``D e(t)^2`` (:meth:`intensity`), as for an earthquake's ground motion.
+
     Args:
         D: intensity, a scalar >= 0 (one source) or a symmetric positive-definite ``(m, m)`` matrix
             (``m`` correlated sources). The two-sided power spectral density is ``S0 = D / pi``.
+        envelope: ``None`` (stationary), or a function ``e(t) -> scalar`` of the time in s, traceable by JAX and
+            hashable (static: changing it recompiles), e.g. :class:`jdpim.ShinozukaSato`. It multiplies the
+            forcing at the integrator's nodes, so every method that integrates paths (DPIM, Monte Carlo, subset
+            simulation) takes it; estimators that assume a constant ``D`` refuse it.
 
     Examples:
         >>> import jdpim
         >>> jdpim.WhiteNoise(D=0.03).n_sources
         1
+        >>> round(float(jdpim.WhiteNoise(D=0.03, envelope=jdpim.ShinozukaSato(0.1, 0.5)).intensity(1.0)), 4)
+        0.0093
     """
 
     D: Any = 0.03
+    envelope: Callable | None = static_field(default=None)
 
     def __post_init__(self):
+        if self.envelope is not None and not callable(self.envelope):
+            raise TypeError(f"envelope must be None or a function e(t) -> scalar, got {self.envelope!r}")
         if isinstance(self.D, (str, bytes)):
             raise TypeError(f"D must be a real number or a matrix of them, got {self.D!r}")
         if isinstance(self.D, (list, tuple)):  # one array leaf, not a leaf per entry
@@ -66,3 +79,17 @@ class WhiteNoise:
         if D.ndim == 0:
             return jnp.sqrt(D).reshape(1, 1)
         return jnp.linalg.cholesky(D)
+
+    def intensity(self, t):
+        """``D e(t)^2``: the intensity at time ``t`` (s; ``D`` itself for a stationary noise)."""
+        D = jnp.asarray(self.D)
+        return D if self.envelope is None else D * jnp.asarray(self.envelope(t)) ** 2
+
+    def require_stationary(self, what: str, instead: str) -> None:
+        """Raise a ``ValueError`` naming ``what`` (which assumes a constant ``D``) and ``instead`` where the noise is
+        modulated."""
+        if self.envelope is not None:
+            raise ValueError(
+                f"{what} assumes a constant noise intensity D, but the noise is modulated by "
+                f"{self.envelope!r}: {instead}"
+            )

@@ -75,11 +75,11 @@ def dpim_replicates(scene, n_points: int = 1000, n_replicates: int = 4, *, seed:
         runs = jdpim.dpim_replicates(scene, 1000, 4)
         sd = np.std([r.pdf("x", grid, t) for r in runs], axis=0, ddof=1)  # the error of one run, on grid
     """
-    from .methods._dpim import dpim
+    from .methods._dpim import DPIM, dpim
 
     n_replicates = check_int("n_replicates", n_replicates, low=2)
     seed = check_int("seed", seed, low=0)
-    dists = scene.input_distributions()
+    dists = DPIM.input_distributions(scene)
     return [
         dpim(scene, points=randomised_points(dists, n_points, seed + k), progress=progress) for k in range(n_replicates)
     ]

@@ -12,8 +12,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._constraints import clearances
-from ._distributions import ANGLE, Distribution, LogNormal, Normal, Range, TruncatedNormal, Uniform
-from ._excitation import GaussianNodes, SpectralGrid, SpectralRepresentation
+from ._distributions import Distribution, LogNormal, Normal, Range, TruncatedNormal, Uniform
+from ._excitation import AbstractExcitation
 from ._integrate import ImpactRule, Substeps
 from ._mdof import CONSTRAINT, MATRIX_ENTRY, MDOFOscillator
 from ._models import RK4_RADIUS, AbstractOscillator, AbstractSystem, Oscillator, n_sources_of, rk4_step_limit
@@ -22,8 +22,6 @@ from ._pytree import array_leaf, check_real, concrete, pytree_dataclass, real_ar
 from ._warnings import StepSizeWarning
 from .filters import check_harmonic_start
 
-# each sampling method's excitation where the scene leaves it to the method (excitation=None)
-DEFAULT_EXCITATION = {"dpim": SpectralRepresentation, "monte_carlo": GaussianNodes}
 NOISE_PARAMETERS = ("D",)  # parameters of the excitation, beside the model's
 _GRID_TOL = 1e-6  # relative tolerance (in steps) for times that must lie on the time grid
 # share of RK4's stability bound above which dt is warned about (there an undamped mode loses 8 % of its energy
@@ -45,7 +43,7 @@ class Scene:
 
     Args:
         model: the oscillator (physical parameters are traced leaves).
-        noise: the white-noise excitation; its number of sources must match the model's gains.
+        noise: the white noise (intensity, optional envelope); its number of sources must match the model's gains.
         t_end: end time in s (> 0, a multiple of ``dt``).
         dt: RK4 time step in s (0 < dt < t_end), within RK4's stability bound for the fastest mode of the model
             linearised at rest (filters included); above half of it a ``jdpim.StepSizeWarning``. A clearance
@@ -58,10 +56,11 @@ class Scene:
             or ``LogNormal`` law, where ``name`` is a model parameter or ``"x0"``/``"v0"``. Every value the law
             can take must be one the parameter may take (``r`` in [0, 1], ``x0`` at or above the barrier, ...;
             a truncated law bounds a normal one). They become extra DPIM input dimensions.
-        excitation: how the white noise is generated: ``jdpim.SpectralRepresentation()`` (DPIM needs it; Monte
-            Carlo may use it) or ``jdpim.GaussianNodes()`` (Monte Carlo: Gaussian values drawn inside the steps),
-            or ``None`` (default) for each method's own (:meth:`excitation_for`): the spectral representation
-            for DPIM, Gaussian nodes for Monte Carlo, as accurate and cheaper (docs/speed.md).
+        excitation: how the white noise is generated at the integrator's nodes (a
+            :class:`jdpim.AbstractExcitation`): ``jdpim.SpectralRepresentation()`` (DPIM needs it; Monte Carlo may
+            use it) or ``jdpim.GaussianNodes()`` (Monte Carlo: Gaussian values drawn inside the steps), or ``None``
+            (default) for each method's own (its ``default_excitation``): the spectral representation for DPIM,
+            Gaussian nodes for Monte Carlo, as accurate and cheaper (docs/speed.md).
         impacts: impact-resolution settings.
         substeps: sub-stepping of stiff steps (cubic damping at large velocities), e.g. ``jdpim.Substeps()``;
             ``None`` (default) traces none: blow-up is then counted and warned about (``NonFiniteWarning``).
@@ -83,7 +82,7 @@ class Scene:
     dt: float = static_field(default=0.01)
     save_at: tuple = static_field(default=None)
     random: Any = static_field(default=())
-    excitation: SpectralRepresentation | GaussianNodes | None = static_field(default=None)
+    excitation: AbstractExcitation | None = static_field(default=None)
     impacts: ImpactRule = static_field(default_factory=ImpactRule)
     substeps: Substeps | None = static_field(default=None)
     dtype: str | None = static_field(default=None)
@@ -110,14 +109,14 @@ class Scene:
         object.__setattr__(self, "save_at", self._checked_save_at(self.save_at))
         object.__setattr__(self, "random", self._checked_random(self.random))
         kinds = (
-            ("excitation", (SpectralRepresentation, GaussianNodes)),
+            ("excitation", AbstractExcitation),
             ("impacts", ImpactRule),
             ("substeps", Substeps),
         )
         for name, kind in kinds:
             optional = name in ("excitation", "substeps")  # None: the method's excitation; no sub-steps
             if not isinstance(getattr(self, name), kind) and not (optional and getattr(self, name) is None):
-                what = " or jdpim.".join(k.__name__ for k in (kind if isinstance(kind, tuple) else (kind,)))
+                what = kind.__name__
                 raise TypeError(f"{name} must be a jdpim.{what}{' or None' * optional}, got {getattr(self, name)!r}")
         model = self.model
         n_constraints = _n_constraints(model)
@@ -127,8 +126,8 @@ class Scene:
                 decided = tuple(bool(not x) for x in reach)
                 object.__setattr__(self, "impacts", dataclasses.replace(self.impacts, scene_hold=decided))
         self.impacts.held(n_constraints)  # a hold of one entry per constraint
-        if isinstance(self.excitation, SpectralRepresentation):
-            self.spectral_grid()  # the cutoff must lie below the Nyquist frequency of the stage grid
+        if self.excitation is not None:
+            self.excitation.check(self)  # e.g. a spectral cutoff below the Nyquist frequency of the stage grid
         if self.dtype not in (None, "float32", "float64"):
             raise ValueError(f"dtype must be None, 'float32' or 'float64', got {self.dtype!r}")
         if self.dtype == "float64" and not jax.config.jax_enable_x64:
@@ -300,25 +299,6 @@ class Scene:
     @property
     def float_dtype(self):
         return jnp.zeros(()).dtype if self.dtype is None else jnp.dtype(self.dtype)
-
-    def excitation_for(self, method: str) -> SpectralRepresentation | GaussianNodes:
-        """The excitation that ``method`` (``"dpim"`` or ``"monte_carlo"``) integrates with: ``excitation``, or
-        where that is ``None`` the method's own, ``SpectralRepresentation()`` for DPIM and ``GaussianNodes()``
-        for Monte Carlo."""
-        if not isinstance(method, str) or method not in DEFAULT_EXCITATION:
-            raise ValueError(f"method must be one of {tuple(DEFAULT_EXCITATION)}, got {method!r}")
-        return DEFAULT_EXCITATION[method]() if self.excitation is None else self.excitation
-
-    def spectral_grid(self) -> SpectralGrid:
-        """The FFT grid of the scene's spectral representation (the default one where ``excitation`` is ``None``)."""
-        excitation = self.excitation_for("dpim")
-        if not isinstance(excitation, SpectralRepresentation):
-            raise ValueError(f"the scene's excitation is {excitation!r}: it has no spectral grid")
-        return excitation.grid(self.t_end, self.dt)
-
-    def input_distributions(self) -> tuple:
-        """Distributions of the DPIM input space: ``(Theta1, Theta2)`` per source, then random parameters."""
-        return (ANGLE,) * (2 * self.n_sources) + tuple(d for _, d in self.random)
 
     def replace(self, **changes) -> Scene:
         """A copy with fields replaced (``scene.replace(model=scene.model.replace(alpha=0.05))``). A ``save_at``

@@ -27,12 +27,12 @@ import time
 
 import numpy as np
 
+from . import _report as report
 from . import figures
 from ._excitation import SpectralRepresentation
 from ._models import VibroImpactOscillator
 from ._noise import WhiteNoise
 from ._scene import Scene
-from .cli import report
 from .methods._path_integration import PathIntegration
 
 ALPHA, GAMMA, R = 0.03, 0.03, 0.98
@@ -183,7 +183,7 @@ def reproduce(settings: Settings = QUICK, out="jdpim_out/paper", *, pdf: bool = 
 
 
 def _arrays(D: float, d: dict, grids: dict, save_at) -> dict:
-    """``paper.npz``'s arrays of noise level ``D`` from the ``jdpim.cli.report.densities`` arrays ``d``.
+    """``paper.npz``'s arrays of noise level ``D`` from the ``jdpim._report.densities`` arrays ``d``.
 
     ``D<D>_t<t>_<var>_{dpim,mcs,mcs_stderr,dpim_replicate_sd}`` at every saved time ``t``; at the last one the
     reference marginals ``D<D>_t<t>_<var>_reference`` and the joint densities ``D<D>_t<t>_joint_{dpim,mcs,

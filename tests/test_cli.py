@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 import jdpim
+from jdpim import _report as report
 from jdpim import cli
-from jdpim.cli import report
 from jdpim.cli._scenefile import SceneFileError, load
 
 EXAMPLE = pathlib.Path(__file__).parents[1] / "examples" / "reference.toml"
@@ -90,7 +90,7 @@ def test_scene_files_choose_monte_carlos_forcing(tmp_path):
     path.write_text(_scene_text(n_samples='64\nforcing = "spectral"'))
     sf = load(path)
     assert sf.scene.excitation == jdpim.SpectralRepresentation() and sf.table["method"]["forcing"] == "spectral"
-    assert sf.scene.excitation_for("monte_carlo") == sf.scene.excitation_for("dpim")
+    assert jdpim.MonteCarlo().excitation(sf.scene) == jdpim.DPIM().excitation(sf.scene)
 
 
 @pytest.mark.parametrize("spelling", ['"none"', None])

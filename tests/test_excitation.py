@@ -83,7 +83,7 @@ def test_rayleigh_random_functions_are_orthonormal_and_gaussian(grid):
 def test_dpim_excitation_variance_over_points():
     """The P-weighted variance of the DPIM excitation over 1000 points matches 2 S0 (w_u + dw/2)."""
     scene = jdpim.Scene(jdpim.VibroImpactOscillator(), noise=jdpim.WhiteNoise(D=0.03), t_end=20.0, dt=0.02)
-    g = scene.spectral_grid()
+    g = jdpim.SpectralRepresentation().grid(scene.t_end, scene.dt)
     pts = jdpim.dpim_points(scene, 1000)
     c = jax.vmap(lambda t: ex.random_function_coefficients(t, g, scene.noise.mixing()))(jnp.asarray(pts.theta))
     xi = np.asarray(ex.synthesize(c, g))[:, :, 0]

@@ -225,7 +225,7 @@ def test_a_stationary_density_refuses_a_finite_time():
 
 def test_reports_draw_a_stationary_density_at_every_saved_time():
     """``jdpim paper`` compares transient results with a stationary reference at each saved time."""
-    from jdpim.cli import report
+    from jdpim import _report as report
 
     res = jdpim.path_integration(elastic("float32"), SMALL, stationary=True)
     grid = np.linspace(0.0, 1.0, 5)

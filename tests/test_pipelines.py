@@ -84,7 +84,7 @@ def test_saved_times_and_initial_state(elastic_scene):
 
 def test_random_parameters_enter_the_input_space(elastic_scene):
     s = elastic_scene.replace(t_end=5.0, save_at=(5.0,), random={"alpha": jdpim.TruncatedNormal(0.03, 0.01, low=0.0)})
-    assert len(s.input_distributions()) == 3
+    assert len(jdpim.DPIM.input_distributions(s)) == 3
     res = jdpim.dpim(s, n_points=64)
     mc = jdpim.monte_carlo(s, n_samples=64)
     assert res.states.shape == mc.states.shape == (64, 1, 2)

@@ -72,7 +72,7 @@ def run_budget(out: pathlib.Path, *, quick: bool = False, log=print) -> list[str
         scene = elastic_scene(t_end, 0.01, exc)
         for n in (n_dpim // 2, n_dpim, 2 * n_dpim):
             res = dpim(scene, n_points=n)
-            add(_row(f"period x (K={scene.spectral_grid().n_terms})", factor, "dpim", n, res, scene))
+            add(_row(f"period x (K={exc.grid(t_end, 0.01).n_terms})", factor, "dpim", n, res, scene))
     for rf in ("cosine", "rayleigh"):
         for n in (n_dpim // 4, n_dpim, 4 * n_dpim):
             scene = elastic_scene(t_end, 0.01, SpectralRepresentation(random_functions=rf))

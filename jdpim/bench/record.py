@@ -27,7 +27,7 @@ def record(protocol: str) -> dict:
     import jax
 
     from .._cpu import usable_cores
-    from ..cli.report import versions
+    from .._io import versions
 
     return {
         "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),

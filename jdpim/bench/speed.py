@@ -37,9 +37,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._excitation import GaussianNodes, SpectralRepresentation, synthesize
+from .._excitation import GaussianNodes, SpectralRepresentation
 from .._integrate import ImpactRule
-from ..methods._paths import _path_inputs, _simulate_chunk, dpim_inputs, monte_carlo_inputs
+from ..methods._paths import _simulate_chunk, dpim_inputs, monte_carlo_inputs, path_forcing
 from .accuracy import ALPHA, GAMMA, D, R, grids, paper_scene
 from .record import record, record_lines
 from .timing import protocol, timed
@@ -66,12 +66,10 @@ def _median_time(fn, repeats: int) -> float:
 
 def split(scene, rows, kind: str, repeats: int, n_chunks: int) -> dict:
     """Warm median seconds of the excitation and of the integration of one chunk ``rows``, times ``n_chunks``."""
-    grid = scene.spectral_grid()
 
     @jax.jit
     def excite(scene, rows):
-        coeffs, _ = jax.vmap(functools.partial(_path_inputs, scene, kind))(rows)
-        return synthesize(coeffs, grid).astype(scene.float_dtype)
+        return path_forcing(scene, kind, rows)[0]
 
     @jax.jit
     def whole(scene, rows):

@@ -154,7 +154,7 @@ def _paper_parser(sub) -> None:
 def run(args) -> dict:
     """The main job. Returns the summary it also writes to ``<out>/summary.json``."""
     import jdpim
-    from jdpim.cli import report
+    from jdpim import _report as report
     from jdpim.cli._scenefile import excitation_of
 
     if max(args.save_at) > args.t_end:
@@ -170,9 +170,10 @@ def run(args) -> dict:
         excitation=excitation_of(args.forcing),
     )
     args.out.mkdir(parents=True, exist_ok=True)
+    grid = jdpim.DPIM().excitation(scene).grid(scene.t_end, scene.dt)  # the spectral representation DPIM runs on
     log(
         f"scene: alpha={args.alpha} gamma={args.gamma} r={args.r} D={args.D}, t in [0, {args.t_end}] s, "
-        f"dt={args.dt} s, w_u={scene.spectral_grid().cutoff:.3g} rad/s, K={scene.spectral_grid().n_terms}"
+        f"dt={args.dt} s, w_u={grid.cutoff:.3g} rad/s, K={grid.n_terms}"
     )
     log(f"DPIM: {args.points} points, compile + warm-up + {args.repeats} timed runs ...")
     dp, t_dp = report.timed_protocol(scene, jdpim.DPIM(n_points=args.points), repeats=args.repeats)
@@ -234,8 +235,8 @@ SHORT = {"dpim": "dpim", "monte_carlo": "mcs", "reference": "path integration"} 
 
 
 def _run_scene(args) -> dict:
+    from jdpim._report import logger
     from jdpim.cli import _scenefile, _scenerun
-    from jdpim.cli.report import logger
 
     sf = _scenefile.load(args.scene_file)
     return _scenerun.run(sf, args.out, progress=not args.quiet, log=logger(args.quiet))
@@ -243,8 +244,8 @@ def _run_scene(args) -> dict:
 
 def _paper(args) -> dict:
     from jdpim import paper
+    from jdpim._report import logger
     from jdpim.cli._scenefile import excitation_of
-    from jdpim.cli.report import logger
 
     settings = paper.QUICK if args.quick else paper.FULL
     settings = settings.with_overrides(n_points=args.points, n_samples=args.samples, replicates=args.replicates)

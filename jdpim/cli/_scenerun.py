@@ -9,7 +9,7 @@ import pathlib
 
 import numpy as np
 
-from . import report
+from .. import _report as report
 from ._scenefile import SceneFile
 
 # the timing table of a scene-file run: a row per method, the wall and CPU time of ``jdpim.solve``

@@ -5,13 +5,14 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
+from .._excitation import SpectralRepresentation
 from .._points import PointSet
 from .._pytree import check_int, pytree_dataclass, static_field
 from .._replicates import randomised_points
 from .._scene import Scene
 from ..results._samples import Result
 from ._base import solve
-from ._paths import SamplingMethod, check_run_settings, dpim_inputs
+from ._paths import SamplingMethod, check_run_settings, dpim_input_distributions, dpim_inputs
 
 
 @pytree_dataclass
@@ -28,7 +29,7 @@ class DPIM(SamplingMethod):
 
     Args:
         n_points: number of representative points (>= 2), if ``points`` is not given.
-        points: a precomputed :class:`jdpim.PointSet` matching ``scene.input_distributions()`` (a pytree
+        points: a precomputed :class:`jdpim.PointSet` matching ``DPIM.input_distributions(scene)`` (a pytree
             leaf of the method: tuned point sets pass through ``jax.jit``).
         chunk_size: most paths per chunk (each device's paths are split into equal chunks no larger), or
             ``None`` for a memory-based default.
@@ -54,6 +55,7 @@ class DPIM(SamplingMethod):
     devices: tuple | None = static_field(default=None)
     progress: bool | None = static_field(default=None)
     name = "dpim"
+    default_excitation = SpectralRepresentation()  # two elementary variables per source
 
     def __post_init__(self):
         if self.points is None:
@@ -66,7 +68,13 @@ class DPIM(SamplingMethod):
         """This method with the randomised point set of seed ``k`` (:func:`jdpim.randomised_points`) of the
         same size: replicates ``k = 0, 1, ...`` are independent and identically distributed."""
         n = self.n_points if self.points is None else self.points.theta.shape[0]
-        return dataclasses.replace(self, points=randomised_points(scene.input_distributions(), n, k))
+        return dataclasses.replace(self, points=randomised_points(self.input_distributions(scene), n, k))
+
+    @staticmethod
+    def input_distributions(scene: Scene) -> tuple:
+        """Distributions of the input space of ``scene``: its excitation's elementary variables (``(Theta1, Theta2)``
+        per noise source for the spectral representation), then its random parameters."""
+        return dpim_input_distributions(scene)
 
     def inputs(self, scene: Scene) -> tuple:
         return dpim_inputs(scene, self.n_points, points=self.points, chunk_size=self.chunk_size)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from .._excitation import GaussianNodes
 from .._pytree import check_int, pytree_dataclass, static_field
 from .._scene import Scene
 from ..results._samples import Result
@@ -13,8 +14,9 @@ from ._paths import SamplingMethod, check_run_settings, monte_carlo_inputs
 class MonteCarlo(SamplingMethod):
     """Monte Carlo simulation (settings; run it with ``jdpim.solve(scene, MonteCarlo(...))``).
 
-    Independent sample paths, each under its own draw of the forcing: by default (``Scene(excitation=None)``)
-    Gaussian values at the RK4 nodes drawn inside the steps (:class:`jdpim.GaussianNodes`), or with
+    Independent sample paths, each under its own draw of the forcing: by default (``Scene(excitation=None)``,
+    ``default_excitation``) Gaussian values at the RK4 nodes drawn inside the steps (:class:`jdpim.GaussianNodes`),
+    or with
     ``excitation=jdpim.SpectralRepresentation()`` Gaussian spectral coefficients on DPIM's excitation grid.
     Densities are kernel estimates with weights ``1 / n_samples``, with sampling standard errors
     (``Result.pdf_error``).
@@ -40,6 +42,7 @@ class MonteCarlo(SamplingMethod):
     devices: tuple | None = static_field(default=None)
     progress: bool | None = static_field(default=None)
     name = "monte_carlo"
+    default_excitation = GaussianNodes()  # as accurate as the spectral representation, and cheaper (docs/speed.md)
 
     def __post_init__(self):
         check_int("n_samples", self.n_samples, low=2)

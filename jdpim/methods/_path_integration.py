@@ -250,6 +250,9 @@ def _validate(scene: Scene, settings: PathIntegration, initial, stationary: bool
             f"path integration does not take random parameters (scene.random={dict(scene.random)!r}); "
             "use jdpim.dpim or jdpim.monte_carlo"
         )
+    scene.noise.require_stationary("path integration (its transition density)", "use jdpim.DPIM or jdpim.MonteCarlo")
+    if scene.model.time_dependent:
+        raise ValueError("path integration needs a model whose forces do not depend on the time; use jdpim.DPIM")
     if scene.model.has_barrier:
         check_real("r", scene.model.r, low=0.0, low_open=True, high=1.0)
     if initial is not None and not callable(initial):

@@ -1,7 +1,8 @@
 """The two pipelines, DPIM and Monte Carlo, sharing one chunked, jitted simulation core.
 
-Data flow: scene -> input rows (DPIM points or MC keys) -> forcing (spectral coefficients and an FFT, or Gaussian
-node values drawn inside the steps, ``Scene.excitation_for``) -> RK4 trajectories (only the saved times kept) ->
+Data flow: scene -> input rows (DPIM points or MC keys) -> forcing at the integrator's nodes (the excitation's
+``from_inputs`` or ``from_keys``: spectral coefficients and an FFT, or Gaussian node values drawn inside the steps;
+the scene's excitation, else the method's ``default_excitation``) -> RK4 trajectories (only the saved times kept) ->
 :class:`Result`. Paths are processed in chunks
 (``lax.map``) so memory stays bounded; every chunk is a pure function of its rows. Large runs are
 streamed in blocks of chunks from a host loop, and the path axis is sharded over the local devices.
@@ -14,6 +15,7 @@ import functools
 import sys
 import time
 import warnings
+from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -21,7 +23,7 @@ import numpy as np
 
 from .._cpu import host_memory, on_cpu
 from .._distributions import elementary_ppf
-from .._excitation import GaussianNodes, gaussian_coefficients, random_function_coefficients, synthesize
+from .._excitation import AbstractExcitation, Clock, Clocked, modulate
 from .._integrate import WIDE_CHUNK, integrate
 from .._points import PointSet, select_points
 from .._pytree import check_int, concrete
@@ -98,11 +100,17 @@ def _largest_chunk(scene: Scene, kind: str) -> int:
 
 
 def _values_per_path(scene: Scene, kind: str) -> int:
-    """Values one path of method ``kind`` holds in a chunk: its spectral excitation over the FFT grid, or (noise
-    drawn inside the steps) its saved states."""
-    if isinstance(scene.excitation_for(kind), GaussianNodes):
-        return 2 * scene.model.dimension * (len(scene.save_at) + 1)
-    return scene.n_sources * scene.spectral_grid().n_fft
+    """Values one path of method ``kind`` holds in a chunk: its excitation's (a spectral excitation over the FFT
+    grid), or where the noise is drawn inside the steps its saved states."""
+    return excitation_of(scene, kind).values_per_path(scene) or 2 * scene.model.dimension * (len(scene.save_at) + 1)
+
+
+def excitation_of(scene: Scene, kind: str) -> AbstractExcitation:
+    """The excitation the sampling method named ``kind`` integrates ``scene`` with: the scene's, or where that is
+    ``None`` the method's own (its ``default_excitation``)."""
+    if scene.excitation is not None:
+        return scene.excitation
+    return SamplingMethod.named(kind).default_excitation
 
 
 def memory_budget() -> int:
@@ -145,7 +153,7 @@ def default_chunk_size(scene: Scene, n_paths: int, kind: str) -> int:
     bytes_per_path = 4 * scene.float_dtype.itemsize * _values_per_path(scene, kind)
     cpu = on_cpu()
     cap = CPU_CHUNK_BYTES // scene.float_dtype.itemsize if cpu else n_paths
-    if cpu and isinstance(scene.excitation_for(kind), GaussianNodes):
+    if cpu and excitation_of(scene, kind).values_per_path(scene) == 0:
         cap = NODES_CHUNK
     largest = max(1, min(n_paths, cap, memory_budget() // bytes_per_path, _largest_chunk(scene, kind)))
     n_chunks = -(-n_paths // largest)
@@ -161,45 +169,44 @@ def _monte_carlo_keys(scene: Scene, row):
     return jax.random.key_data(k_noise), rand
 
 
-def _path_inputs(scene: Scene, kind: str, row):
-    """Spectral coefficients ``(m, K)`` and random-parameter values ``(n_random,)`` of one path."""
-    grid = scene.spectral_grid()
-    mixing = scene.noise.mixing().astype(scene.float_dtype)
-    m = scene.n_sources
+def path_forcing(scene: Scene, kind: str, rows):
+    """``(forcing, rand)`` of a chunk of paths of method ``kind``: their forcing at the nodes (unit envelope) and
+    their random-parameter values ``(n, n_random)``.
+
+    DPIM rows are the excitation's elementary variables, then the random parameters; Monte Carlo rows are keys.
+    """
+    excitation = excitation_of(scene, kind)
     if kind == "dpim":
-        return random_function_coefficients(row[: 2 * m], grid, mixing), row[2 * m :]
-    k_noise, rand = _monte_carlo_keys(scene, row)
-    coeffs = gaussian_coefficients(jax.random.wrap_key_data(k_noise), m, grid, mixing, scene.float_dtype)
-    return coeffs, rand
+        k = len(excitation.input_distributions(scene.n_sources))
+        return excitation.from_inputs(scene, rows[:, :k]), rows[:, k:]
+    k_noise, rand = jax.vmap(functools.partial(_monte_carlo_keys, scene))(rows)
+    return excitation.from_keys(scene, k_noise), rand
 
 
 def _simulate_chunk(scene: Scene, kind: str, rows, track=None):
     """States ``(n, S, 2 d)`` of one chunk of paths (and the values of ``track`` at the saved times: ``integrate``)."""
-    dtype = scene.float_dtype
-    forcing = scene.excitation_for(kind)
-    if isinstance(forcing, GaussianNodes):  # drawn inside the steps from each path's noise key
-        k_noise, rand = jax.vmap(functools.partial(_monte_carlo_keys, scene))(rows)
-        mixing = scene.noise.mixing().astype(dtype)
-        excitation = forcing.node_source(k_noise, mixing, scene.dt, dtype)
-    else:
-        coeffs, rand = jax.vmap(functools.partial(_path_inputs, scene, kind))(rows)
-        excitation = synthesize(coeffs, scene.spectral_grid()).astype(dtype)
-    return integrate_forcing(scene, excitation, rand, track)
+    return integrate_forcing(scene, *path_forcing(scene, kind, rows), track)
 
 
 def integrate_forcing(scene: Scene, excitation, rand, track=None):
     """States ``(n, S, 2 d)`` of ``n`` paths under a given forcing (and ``track``'s values, see ``integrate``).
 
-    ``excitation``: ``(2 T + 1, n, m)`` on the half-step grid, or a node source; ``rand``: the random
-    parameters ``(n, n_random)`` in the order of ``scene.random``.
+    ``excitation``: the unit-envelope forcing at the nodes (:class:`jdpim._excitation.AbstractNodes`), which the
+    noise's envelope (if any) multiplies here; ``rand``: the random parameters ``(n, n_random)`` in the order of
+    ``scene.random``.
     """
     dtype = scene.float_dtype
+    excitation = modulate(excitation, scene.noise.envelope, scene.dt)
+    clocked = scene.model.time_dependent  # the time reaches the model as the forcing's last column
+    if clocked:
+        excitation = Clock(excitation, scene.dt)
     names = tuple(name for name, _ in scene.random)
     model_names = tuple(n for n in names if n not in ("x0", "v0"))
     model_cols = jnp.asarray([names.index(n) for n in model_names], dtype=jnp.int32)
 
     def path_model(r):
-        return scene.model if r is None else with_model_parameters(scene.model, model_names, r[model_cols])
+        model = scene.model if r is None else with_model_parameters(scene.model, model_names, r[model_cols])
+        return Clocked(model) if clocked else model
 
     shape = (rand.shape[0], scene.model.dimension)
     x_start, v_start = scene.initial_state()
@@ -235,8 +242,7 @@ def pad_rows(rows, pad: int):
 
 
 def _simulate(scene: Scene, rows, *, kind: str, chunk_size: int, track=None):
-    if kind not in ("dpim", "monte_carlo"):
-        raise ValueError(f"kind must be 'dpim' or 'monte_carlo', got {kind!r}")
+    SamplingMethod.named(kind)  # an unknown kind fails here, in one line
     n = rows.shape[0]
     pad = (-n) % chunk_size
     padded = pad_rows(rows, pad)
@@ -448,9 +454,16 @@ def _finish(scene: Scene, states, weights, method: str) -> Result:
     return res
 
 
+def dpim_input_distributions(scene: Scene) -> tuple:
+    """Distributions of a scene's DPIM input space: the elementary variables of its excitation (``(Theta1,
+    Theta2)`` per source for the spectral representation), then its random parameters."""
+    excitation = excitation_of(scene, "dpim")
+    return excitation.input_distributions(scene.n_sources) + tuple(d for _, d in scene.random)
+
+
 def dpim_points(scene: Scene, n_points: int = 1000) -> PointSet:
     """The representative point set of a scene's input space (cached; see ``jdpim.select_points``)."""
-    return select_points(scene.input_distributions(), n_points)
+    return select_points(dpim_input_distributions(scene), n_points)
 
 
 def _chunk(scene: Scene, n: int, chunk_size: int | None, kind: str) -> int:
@@ -468,20 +481,15 @@ def _chunk(scene: Scene, n: int, chunk_size: int | None, kind: str) -> int:
 
 def dpim_inputs(scene: Scene, n_points: int = 1000, *, points: PointSet | None = None, chunk_size=None):
     """``(rows, weights, chunk_size)`` of a DPIM run: the points ``(N, d)``, their probabilities ``(N,)``."""
-    if isinstance(scene.excitation_for("dpim"), GaussianNodes):
-        raise ValueError(
-            "DPIM needs the spectral representation (Scene(excitation=None), the default, or "
-            "jdpim.SpectralRepresentation(...)): its random functions of two variables per source; GaussianNodes "
-            "is for Monte Carlo"
-        )
+    distributions = dpim_input_distributions(scene)
     if points is None:
         check_int("n_points", n_points, low=2)
-        check_memory(scene, n_points, "n_points", 64 * len(scene.input_distributions()))
+        check_memory(scene, n_points, "n_points", 64 * len(distributions))
         points = dpim_points(scene, n_points)
     elif not isinstance(points, PointSet):
         raise TypeError(f"points must be a jdpim.PointSet, got {type(points).__name__}")
-    elif tuple(points.distributions) != scene.input_distributions():
-        raise ValueError(f"points.distributions do not match the scene's input space {scene.input_distributions()}")
+    elif tuple(points.distributions) != distributions:
+        raise ValueError(f"points.distributions do not match the scene's input space {distributions}")
     dtype = scene.float_dtype
     rows, weights = jnp.asarray(points.theta, dtype), jnp.asarray(points.weights, dtype)
     return rows, weights, _chunk(scene, points.n_points, chunk_size, "dpim")
@@ -499,13 +507,32 @@ def monte_carlo_inputs(scene: Scene, n_samples: int = 10_000, *, seed: int = 0, 
 class SamplingMethod(AbstractMethod):
     """A method that integrates weighted paths (DPIM points or Monte Carlo samples) in the shared core.
 
-    Subclasses give ``inputs(scene) -> (rows, weights, chunk_size)`` and the fields ``chunk_size``,
-    ``devices`` and ``progress``.
+    Subclasses give ``inputs(scene) -> (rows, weights, chunk_size)``, the fields ``chunk_size``, ``devices`` and
+    ``progress``, and the class attributes ``name`` and ``default_excitation`` (the forcing it integrates a scene
+    with where the scene names none, ``Scene(excitation=None)``).
     """
 
     chunk_size: int | None
     devices: tuple | None
     progress: bool | None
+    default_excitation: ClassVar[AbstractExcitation]
+    _registry: ClassVar[dict] = {}
+
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        if "name" in cls.__dict__:
+            SamplingMethod._registry[cls.name] = cls
+
+    @staticmethod
+    def named(name: str) -> type[SamplingMethod]:
+        """The sampling method class whose results carry ``name`` (``"dpim"``, ``"monte_carlo"``)."""
+        if name not in SamplingMethod._registry:
+            raise ValueError(f"kind must be one of {tuple(SamplingMethod._registry)}, got {name!r}")
+        return SamplingMethod._registry[name]
+
+    def excitation(self, scene: Scene) -> AbstractExcitation:
+        """The excitation this method integrates ``scene`` with: the scene's, else its ``default_excitation``."""
+        return excitation_of(scene, self.name)
 
     @abc.abstractmethod
     def inputs(self, scene: Scene) -> tuple:

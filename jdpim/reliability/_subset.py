@@ -2,7 +2,8 @@ r"""Subset simulation (Au & Beck 2001) for small first-passage probabilities.
 
 The input space is the Gaussian forcing of :class:`jdpim.GaussianNodes`: ``z``, independent standard
 normals at the ``2 T + 1`` half-step nodes of every source (``(2 T + 1) m`` dimensions), mapped to the
-forcing ``sqrt(18 / (5 dt)) L z``. The response is ``Y(z) = max_{0 <= s <= t} q(s)`` at the last saved time.
+forcing ``sqrt(18 / (5 dt)) L z`` (``GaussianNodes.from_normals``; times the noise's envelope, if any). The
+response is ``Y(z) = max_{0 <= s <= t} q(s)`` at the last saved time.
 ``P(Y > b)`` is written as a product of conditional probabilities of nested events ``Y > b_1 > ... ``:
 
 1. level 0: ``N`` independent samples; ``b_1`` is the ``1 - p0`` quantile of ``Y``;
@@ -18,7 +19,6 @@ the chains (``gamma_0 = 0``); the standard error is ``P delta``.
 
 from __future__ import annotations
 
-import math
 import warnings
 
 import jax
@@ -56,6 +56,7 @@ class SubsetSimulation(AbstractMethod):
     width: float = static_field(default=1.0)
     max_levels: int = static_field(default=10)
     name = "subset_simulation"
+    default_excitation = GaussianNodes()  # its input space: the normals at the nodes
 
     def __post_init__(self):
         check_int("n_per_level", self.n_per_level, low=10)
@@ -77,11 +78,6 @@ class SubsetSimulation(AbstractMethod):
         raise ValueError("SubsetSimulation has no density derivatives; use jdpim.MonteCarlo or jdpim.DPIM")
 
     def first_passage(self, scene: Scene, query) -> FirstPassage:
-        if not isinstance(scene.excitation_for("monte_carlo"), GaussianNodes):
-            raise ValueError(
-                "SubsetSimulation samples the Gaussian forcing values at the RK4 nodes: use "
-                "Scene(..., excitation=jdpim.GaussianNodes()) or the default, excitation=None"
-            )
         if scene.random:
             raise ValueError("SubsetSimulation needs a scene without random parameters")
         if query.wrt:
@@ -89,16 +85,15 @@ class SubsetSimulation(AbstractMethod):
         return _subset_simulation(self, scene, query)
 
 
-def _response(scene: Scene, quantity):
+def _response(scene: Scene, quantity, excitation):
     """``z (n, 2 T + 1, m) -> Y (n,)``: the running maximum at the last saved time (jitted)."""
     dtype = scene.float_dtype
-    scale = (math.sqrt(18.0 / (5.0 * scene.dt)) * scene.noise.mixing()).astype(dtype)
 
     @jax.jit
     def response(z):
-        excitation = jnp.einsum("ij,ntj->tni", scale, z.astype(dtype))
+        forcing = excitation.from_normals(scene, z)
         rand = jnp.zeros((z.shape[0], 0), dtype)
-        _, tracked = integrate_forcing(scene, excitation, rand, RunningMax(quantity))
+        _, tracked = integrate_forcing(scene, forcing, rand, RunningMax(quantity))
         y = tracked[:, -1, 0]
         return jnp.where(jnp.isnan(y), -jnp.inf, y), jnp.isnan(y)
 
@@ -123,7 +118,8 @@ def _subset_simulation(method: SubsetSimulation, scene: Scene, query) -> FirstPa
     n, p0 = method.n_per_level, method.p0
     n_c, n_s = int(round(p0 * n)), int(round(1.0 / p0))
     dims = (2 * scene.n_steps + 1, scene.n_sources)
-    response = _response(scene, query.quantity)
+    excitation = scene.excitation if scene.excitation is not None else method.default_excitation
+    response = _response(scene, query.quantity, excitation)
     key = jax.random.key(method.seed)
     key, k0 = jax.random.split(key)
     z = jax.random.normal(k0, (n, *dims), jnp.float32)

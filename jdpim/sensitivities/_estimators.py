@@ -305,6 +305,9 @@ def check_likelihood_ratio(scene, name: str) -> None:
         raise ValueError(f"LikelihoodRatio applies to drift parameters only, not {name!r}; use CentralDifference")
     if scene.n_sources != 1:
         raise ValueError(f"LikelihoodRatio needs one noise source, the scene has {scene.n_sources}")
+    scene.noise.require_stationary("LikelihoodRatio (its score divides by D)", "use CentralDifference")
+    if scene.model.time_dependent:
+        raise ValueError("LikelihoodRatio needs a model whose forces do not depend on the time; use CentralDifference")
     if any(n == name for n, _ in scene.random):
         raise ValueError(f"parameter {name!r} is random in this scene; use CentralDifference")
     D = concrete(scene.noise.D)
@@ -369,6 +372,10 @@ def noise_scaling_applies(scene) -> str | None:
         return "the scene has random parameters"
     if scene.n_sources != 1:
         return "the noise has several sources"
+    if scene.noise.envelope is not None:
+        return "the noise is modulated (its intensity varies in time)"
+    if m.time_dependent:
+        return "the model's forces depend on the time"
     return None
 
 

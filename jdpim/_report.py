@@ -17,8 +17,8 @@ import time
 
 import numpy as np
 
-from .. import figures, metrics
-from .._io import versions as versions  # the metadata of every output, saved results' too
+from . import figures, metrics
+from ._io import versions as versions  # the metadata of every output, saved results' too
 
 NAME = {**figures.NAME, "reference": "path integration"}  # legends and panel titles
 
