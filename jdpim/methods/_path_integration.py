@@ -82,8 +82,10 @@ class PathIntegration(AbstractMethod):
         max_iter, max_restarts, restart: BiCGStab iterations per attempt and attempts (each from the best iterate so
             far) of every linear solve (Newton steps, and the tangent and adjoint solves of derivatives),
             which stops at a relative residual of 1e-9 (float64) or 1e-5 (float32); where they do not reach
-            it, up to ``max_restarts`` cycles of GMRES with Krylov dimension ``restart`` follow. A solve that
-            ends above 100 times the tolerance returns NaN (non-finite, with a ``PathIntegrationWarning``).
+            it, up to ``max_restarts`` cycles of GMRES with Krylov dimension ``restart`` follow. The tangent and
+            adjoint solves run on the operator of 16 steps (each iteration applies the linearised step 16
+            times; see ``docs/path_integration.md``, "Derivatives"). A solve that ends above 100 times the
+            tolerance returns NaN (non-finite, with a ``PathIntegrationWarning``).
         warmup: plain steps before the Newton solve (from the averaged law ``exp(-(a_e H + b H^2)/q)``
             estimated as for the extents, or a Gaussian when the parameters are traced).
         leak_tol: largest mass allowed in the outermost node rows before a ``PathIntegrationWarning``.
