@@ -3,8 +3,9 @@
 The functional is ``f = p_x(0.3) + p_x(0.8)`` of the stationary density (alpha = 0.05, D = 0.05), in float64,
 differentiated with respect to alpha, gamma, r and D. The grid is smaller than the default (61 x 121
 nodes), so that the matrix stays cheap; ``docs/path_integration.md`` gives the full matrix on the default
-grid. Two properties of the solver make the three agree: linear solves that converge (BiCGStab, checked;
-restarted GMRES had stagnated on the adjoint) and deposition weights that are continuously differentiable
+grid. Two properties of the solver make the three agree: linear solves that converge (BiCGStab on the
+operator of 16 steps, checked; restarted GMRES stagnates on the adjoint, and BiCGStab on the one-step adjoint
+of a pointwise density can stall) and deposition weights that are continuously differentiable
 in the images (Catmull-Rom; Lagrange weights have kinks where an image crosses a node, where a
 central difference and a one-sided derivative differ).
 """
