@@ -71,7 +71,7 @@ def main(argv=None, *, from_program=None) -> int:
     pig.add_argument(
         "--quick",
         action="store_true",
-        help="eight cells covering every axis value and the reported one, 81 x 161 nodes (else 73 cells, 121 x 241)",
+        help="18 cells (every axis value, and the reported one), 81 x 161 nodes (else 73 cells, 121 x 241)",
     )
     pig.add_argument("--out", type=pathlib.Path, default=pathlib.Path("jdpim_out/bench"))
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)

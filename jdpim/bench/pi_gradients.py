@@ -6,7 +6,7 @@ float64, differentiated with respect to (alpha, gamma, r, D); gamma only where g
 derivative is one-sided). Matrix: gamma in {0, 0.02, 0.04}, D in {0.03, 0.05}, r in {0.15, 0.6, 0.95}, extents
 ``default`` (estimated from the nominal scene, then fixed) and ``narrow`` (0.8 times those), order 2 and 4, plus
 the cell alpha = 0.06, gamma = 0.04, r = 0.95, D = 0.04, x_max = v_max = 4.5, order 4, on 121 x 241 nodes;
-``quick``: eight cells that take every value of every axis and the extra cell, on 81 x 161 nodes. Per cell:
+``quick``: 17 cells in which every value of every axis appears, and the extra cell, on 81 x 161 nodes. Per cell:
 the largest relative difference ``|grad - jacfwd| / |jacfwd|`` over the parameters, whether any derivative is
 not finite, and the warnings raised.
 """
@@ -59,6 +59,15 @@ QUICK = Plan(
         (0.02, 0.03, 0.95, "default", 4),
         (0.04, 0.05, 0.95, "default", 2),
         (0.0, 0.03, 0.95, "narrow", 4),
+        (0.0, 0.05, 0.15, "narrow", 4),
+        (0.02, 0.03, 0.15, "default", 2),
+        (0.04, 0.03, 0.15, "narrow", 2),
+        (0.02, 0.05, 0.6, "default", 2),
+        (0.02, 0.03, 0.6, "narrow", 4),
+        (0.04, 0.05, 0.6, "default", 4),
+        (0.04, 0.03, 0.95, "narrow", 4),
+        (0.02, 0.05, 0.95, "narrow", 2),
+        (0.0, 0.05, 0.95, "default", 2),
         *EXTRA,
     ),
     n_x=81,
