@@ -1,4 +1,5 @@
-"""``python -m jdpim.bench {accuracy,budget,speed,throughput,sensitivity,mdof,forcing,processes} ...``: benchmarks."""
+"""``python -m jdpim.bench {accuracy,budget,speed,throughput,sensitivity,pi-gradients,mdof,forcing,processes} ...``:
+benchmarks."""
 
 from __future__ import annotations
 
@@ -66,6 +67,13 @@ def main(argv=None, *, from_program=None) -> int:
     sens = sub.add_parser("sensitivity", help="sensitivity estimators: error against exact derivatives versus cost")
     sens.add_argument("--quick", action="store_true", help="short horizons and few paths: a few minutes on 2 cores")
     sens.add_argument("--out", type=pathlib.Path, default=pathlib.Path("jdpim_out/bench"))
+    pig = sub.add_parser("pi-gradients", help="path integration: jax.grad against jax.jacfwd over a matrix of scenes")
+    pig.add_argument(
+        "--quick",
+        action="store_true",
+        help="18 cells (every axis value, and the reported one), 81 x 161 nodes (else 73 cells, 121 x 241)",
+    )
+    pig.add_argument("--out", type=pathlib.Path, default=pathlib.Path("jdpim_out/bench"))
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
     if (argv is None if from_program is None else from_program) or args.cpu_devices is not None:
         from .._cpu import start_devices
@@ -126,6 +134,10 @@ def main(argv=None, *, from_program=None) -> int:
         from .sensitivity import run_sensitivity
 
         files = run_sensitivity(args.out, quick=args.quick, log=lambda s: print(s, flush=True))
+    elif args.command == "pi-gradients":
+        from .pi_gradients import run_pi_gradients
+
+        files = run_pi_gradients(args.out, quick=args.quick, log=lambda s: print(s, flush=True))
     else:
         from .budget import run_budget
 

@@ -37,6 +37,13 @@ ENERGY_SPAN = 20.0  # default extents: the energy where the estimated stationary
 LINEAR_BELOW_R = 0.25
 
 
+# the tangent and adjoint solves of the stationary density run on the operator of this many steps (see
+# _linear_solve and docs/path_integration.md, "Derivatives"): the cotangent of a pointwise density excites
+# the weakly damped rotating modes of the step, whose eigenvalues crowd zero on both sides of the imaginary
+# axis; over several steps the well-damped modes fold onto one, and BiCGStab no longer stalls
+DERIVATIVE_STEPS = 16
+
+
 class PathIntegrationWarning(RuntimeWarning):
     """The path-integration grid is too small or too coarse, or the solve did not converge."""
 
@@ -76,7 +83,8 @@ class PathIntegration(AbstractMethod):
             the L1 residual of a step is below 1e-8 (float64) or 3e-6 (float32).
         max_iter: BiCGStab iterations per attempt of every linear solve (Newton steps, and the tangent and
             adjoint solves of derivatives), which stops at a relative residual of 1e-9 (float64) or 1e-5
-            (float32).
+            (float32). The tangent and adjoint solves run on the operator of 16 steps (each iteration applies
+            the linearised step 16 times; see ``docs/path_integration.md``, "Derivatives").
         max_restarts: BiCGStab attempts (each from the best iterate so far); where they do not reach the
             tolerance, up to ``max_restarts`` cycles of GMRES follow.
         restart: the Krylov dimension of those GMRES cycles. A solve that ends above 100 times the tolerance
@@ -423,18 +431,37 @@ def _warn_unsolved(relres, solved) -> None:
     )
 
 
-def _linear_solve(settings: PathIntegration, matvec, b):
+def _linear_solve(settings: PathIntegration, matvec, b, steps: int = 1):
     """``x`` with ``matvec(x) = b`` by BiCGStab, restarted from its best iterate, then GMRES; NaN if unsolved.
 
     Restarted GMRES stagnates on the adjoint of the stationary step (the transposed flow gathers where the
     flow scatters): measured, relative residual 3e-2 after 6 restarts of 60 (121 x 241 nodes, alpha = 0.05,
     gamma = 0.03, r = 0.9, D = 0.05), which made reverse-mode derivatives 9 % wrong; BiCGStab reaches 4e-10.
+
+    ``steps > 1``: ``matvec`` is ``B - I`` for a linearised step ``B`` (or its transpose), and the Krylov
+    solver runs on ``(I - B^steps) x = -(I + B + ... + B^(steps - 1)) b`` instead, which has the same solution
+    (polynomial preconditioning; see ``DERIVATIVE_STEPS``). Convergence is checked on ``matvec(x) = b``.
     """
     tol = 1e-9 if b.dtype == jnp.float64 else 1e-5
     norm_b = jnp.maximum(jnp.linalg.norm(b), jnp.finfo(b.dtype).tiny)
 
     def relres(x):
         return jnp.linalg.norm(matvec(x) - b) / norm_b
+
+    operator, rhs = matvec, b
+    if steps > 1:
+
+        def powers(x):  # B^steps x, and (I + B + ... + B^(steps - 1)) x
+            def body(_, c):
+                y, total = c
+                return matvec(y) + y, total + y
+
+            return jax.lax.fori_loop(0, steps, body, (x, jnp.zeros_like(x)))
+
+        def operator(x):
+            return x - powers(x)[0]
+
+        rhs = -powers(b)[1]
 
     def attempt(solver):
         def body(carry):
@@ -447,10 +474,10 @@ def _linear_solve(settings: PathIntegration, matvec, b):
         return body
 
     def bicg(x):
-        return bicgstab(matvec, b, x0=x, tol=tol, maxiter=settings.max_iter)[0]
+        return bicgstab(operator, rhs, x0=x, tol=tol, maxiter=settings.max_iter)[0]
 
     def krylov(x):
-        return gmres(matvec, b, x0=x, tol=tol, restart=settings.restart, maxiter=1)[0]
+        return gmres(operator, rhs, x0=x, tol=tol, restart=settings.restart, maxiter=1)[0]
 
     def unsolved(c):
         return (c[0] < settings.max_restarts) & (c[2] > tol)
@@ -504,8 +531,8 @@ def _stationary(scene: Scene, settings: PathIntegration, extents, law):
         return jax.lax.custom_linear_solve(
             g,
             y,
-            solve=functools.partial(_linear_solve, settings),
-            transpose_solve=functools.partial(_linear_solve, settings),
+            solve=functools.partial(_linear_solve, settings, steps=DERIVATIVE_STEPS),
+            transpose_solve=functools.partial(_linear_solve, settings, steps=DERIVATIVE_STEPS),
         )
 
     p, newton_steps = jax.lax.custom_root(residual, guess, solve, tangent_solve, has_aux=True)
