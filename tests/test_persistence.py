@@ -142,7 +142,9 @@ def test_result_of_several_degrees_of_freedom_with_its_scene(tmp_path):
     )
     states = np.random.default_rng(1).standard_normal((5, 2, 4))
     states[0, 0, 0] = np.frombuffer(np.uint64(0x7FF8_0000_0000_BEEF).tobytes(), np.float64)[0]  # a NaN payload
-    points = jdpim.randomised_points(jdpim.DPIM.input_distributions(scene), 5, 0, n_reference=256)  # a DPIM point set
+    points = jdpim.randomised_points(
+        jdpim.DPIM.input_distributions(scene.replace(excitation=None)), 5, 0, n_reference=256
+    )  # a DPIM point set
     res = jdpim.Result((1.0, 2.0), states, points.weights, {"x1": np.float64(-0.2)}, "dpim", model.coordinates)
     method = jdpim.DPIM(points=points, chunk_size=4, progress=False)
     back, meta = round_trip(res, tmp_path / "mdof.npz", scene=scene, method=method)
@@ -151,7 +153,7 @@ def test_result_of_several_degrees_of_freedom_with_its_scene(tmp_path):
     assert jax.jit(lambda r: r.n_nonfinite())(back).tolist() == [1, 0]  # a loaded result passes through jax.jit
     assert_same(meta.scene, scene)
     assert_same(meta.method, method)
-    assert meta.method.points.distributions == jdpim.DPIM.input_distributions(scene)
+    assert meta.method.points.distributions == jdpim.DPIM.input_distributions(scene.replace(excitation=None))
 
 
 def test_grid_result_round_trip_keeps_the_coarse_solve(tmp_path):

@@ -16,7 +16,6 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import json
-import os
 import pathlib
 import time
 import warnings
@@ -30,6 +29,7 @@ from .._noise import WhiteNoise
 from .._scene import Scene
 from ..methods._base import solve
 from ..methods._path_integration import PathIntegration, default_extents
+from .record import record, record_lines
 
 ALPHA = 0.06
 XS = (0.3, 0.8)
@@ -132,14 +132,20 @@ def run_pi_gradients(out: pathlib.Path, *, quick: bool = False, log=print) -> li
     return [f"{stem}.json", f"{stem}.md"]
 
 
+PROTOCOL = (
+    "per cell one jitted program gives jax.grad and jax.jacfwd of f in float64; no timing: the record is of accuracy"
+)
+
+
 def _write(out: pathlib.Path, stem: str, plan: Plan, rows: list) -> None:
-    load = os.getloadavg()
-    meta = {"load_average": load, "cpu_count": os.cpu_count(), "alpha": ALPHA, "n_x": plan.n_x, "n_v": plan.n_v}
-    (out / f"{stem}.json").write_text(json.dumps({"meta": meta, "rows": rows}, indent=1))
+    rec = record(PROTOCOL)
+    settings = {"alpha": ALPHA, "n_x": plan.n_x, "n_v": plan.n_v}
+    (out / f"{stem}.json").write_text(json.dumps({"record": rec, "settings": settings, "rows": rows}, indent=1))
     worst = max((r["max_rel_diff"] for r in rows if r["max_rel_diff"] is not None), default=float("nan"))
     lines = [
         f"# Path-integration derivatives: grad against jacfwd ({plan.n_x} x {plan.n_v} nodes)",
         "",
+        *record_lines(rec),
         f"f = p_x(0.3) + p_x(0.8), stationary, alpha = {ALPHA}, float64; largest relative difference over "
         f"(alpha, gamma if > 0, r, D). Cells: {len(rows)}, not finite: {sum(not r['finite'] for r in rows)}, "
         f"worst: {worst:.1e}.",

@@ -58,7 +58,8 @@ def divergence_scale(scene: Scene) -> np.ndarray | None:
 
     The velocity scale ``V = |v0| + |J| |x0| + |B| sqrt(2 |D| t_end) + |a0| t_end`` adds the start (``J`` the
     Jacobian of the model linearised at rest, infinity norms), the free growth of the noise's impulses (``B`` the
-    accelerations per unit noise at rest) and of a constant force (``a0`` the acceleration at rest without noise);
+    accelerations per unit noise at rest) and of a constant force (``a0`` the acceleration at rest without noise, its
+    largest over the run for a time-dependent model);
     coordinates reach ``|x0| + V t_end``. Random starts count with their mean plus ten
     standard deviations."""
     model, jac, d = scene.model, scene.model.linearised(), concrete(scene.noise.D)
@@ -69,15 +70,21 @@ def divergence_scale(scene: Scene) -> np.ndarray | None:
     for name, dist in scene.random:
         if name in start:
             start[name] += abs(dist.mean) + 10.0 * dist.std
-    q = jnp.asarray(model.rest(), scene.float_dtype)
-    xi = jnp.zeros((scene.n_sources,), q.dtype)
+    with jax.ensure_compile_time_eval():  # concrete where the model's parameters are, also inside a jit trace
+        q = jnp.asarray(model.rest(), scene.float_dtype)
+        xi = jnp.zeros((scene.n_sources,), q.dtype)
+        # the forces at rest over the run (a time-dependent load at 257 times), without and per unit noise
+        times = jnp.linspace(0.0, scene.t_end, 257 if model.time_dependent else 1, dtype=q.dtype)
 
-    def acceleration(xi):
-        return model.state_acceleration(q, jnp.zeros_like(q), xi)
+        def acceleration(xi, t):
+            return model.state_acceleration_at(t, q, jnp.zeros_like(q), xi)
 
-    gains, drift = np.asarray(jax.jacfwd(acceleration)(xi)), np.asarray(acceleration(xi))
+        gains = concrete(jax.vmap(jax.jacfwd(acceleration), (None, 0))(xi, times))
+        drift = concrete(jax.vmap(acceleration, (None, 0))(xi, times))
+    if gains is None or drift is None:
+        return None
     norm = np.max(np.sum(np.abs(jac), axis=1))
-    kick = np.max(np.sum(np.abs(gains), axis=1)) * np.sqrt(2.0 * np.max(np.abs(d)) * scene.t_end)
+    kick = np.max(np.sum(np.abs(gains), axis=-1)) * np.sqrt(2.0 * np.max(np.abs(d)) * scene.t_end)
     v = start["v0"] + norm * start["x0"] + kick + np.max(np.abs(drift)) * scene.t_end
     n = model.dimension
     return np.concatenate([np.full(n, start["x0"] + v * scene.t_end), np.full(n, v)])
