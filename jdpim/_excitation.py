@@ -137,7 +137,7 @@ class SpectralRepresentation(AbstractExcitation):
             by a few spectral lines (a lightly damped oscillator near stationarity) stays Gaussian.
             ``"cosine"``: ``sqrt2 cos(m_k Theta_j + pi/4)`` (Liu, Liu & Peng 2016): arcsine-distributed
             coefficients; measured kurtosis 2.3-2.5 and an L1 error that does not decrease with N
-            (0.11-0.15) for the free oscillator at t = 100-200 s (README).
+            (0.11-0.15) for the free oscillator at t = 100-200 s (docs/accuracy.md).
 
     Examples:
         >>> import jdpim

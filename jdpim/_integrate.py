@@ -497,8 +497,8 @@ def _mirror(model, q, v):
 WIDE_CHUNK = 8192
 WIDE_SHARE = 16
 CROWDED_AT = 128
-# a batch of more rows than this has a multiple of them: XLA's CPU code for a batch of an odd number of rows ran
-# 1.8-2.8x slower per step
+# a batch of more rows than this has a multiple of them: XLA's CPU code for a batch of an odd number of rows is
+# markedly slower per step
 BATCH_ROWS = 8
 
 
@@ -509,7 +509,7 @@ def branch_free(n: int) -> bool:
 
 def batch_rows(n: int, wide: bool) -> int:
     """Rows of one resolution batch in a chunk of ``n`` paths: ``ceil(n / 64)``, or ``ceil(n / WIDE_SHARE)`` in a
-    wide chunk, rounded up to a multiple of ``BATCH_ROWS`` above it (XLA's CPU code took 1.8-2.8x as long per step
+    wide chunk, rounded up to a multiple of ``BATCH_ROWS`` above it (XLA's CPU code is markedly slower per step
     for batches of an odd number of rows)."""
     cap = -(-n // WIDE_SHARE) if wide else max(1, -(-n // 64))
     return min(n, -(-cap // BATCH_ROWS) * BATCH_ROWS) if cap > BATCH_ROWS else cap

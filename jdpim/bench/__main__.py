@@ -27,7 +27,11 @@ def main(argv=None, *, from_program=None) -> int:
     )
     sub = parser.add_subparsers(dest="command", required=True)
     acc = sub.add_parser("accuracy", help="error against exact/reference PDFs versus warm wall time")
-    acc.add_argument("--quick", action="store_true", help="small sweep that finishes in a few minutes on 2 cores")
+    acc.add_argument(
+        "--quick",
+        action="store_true",
+        help="small sweep: DPIM up to 4000 points, MCS up to 1e4, one path-integration grid, one timed repeat",
+    )
     acc.add_argument("--case", nargs="+", default=["elastic", "paper"], choices=["elastic", "paper"])
     acc.add_argument("--t-end", type=float, default=None, help="override the sweep's end time (s)")
     acc.add_argument("--out", type=pathlib.Path, default=pathlib.Path("jdpim_out/bench"))
@@ -65,7 +69,7 @@ def main(argv=None, *, from_program=None) -> int:
     thr.add_argument("--repeats", type=_positive_int, default=3, help="warm repeats (median)")
     thr.add_argument("--out", type=pathlib.Path, default=pathlib.Path("jdpim_out/bench"))
     sens = sub.add_parser("sensitivity", help="sensitivity estimators: error against exact derivatives versus cost")
-    sens.add_argument("--quick", action="store_true", help="short horizons and few paths: a few minutes on 2 cores")
+    sens.add_argument("--quick", action="store_true", help="short horizons (t = 10, 50) and few paths (2000, 8000)")
     sens.add_argument("--out", type=pathlib.Path, default=pathlib.Path("jdpim_out/bench"))
     pig = sub.add_parser("pi-gradients", help="path integration: jax.grad against jax.jacfwd over a matrix of scenes")
     pig.add_argument(

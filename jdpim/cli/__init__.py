@@ -142,7 +142,7 @@ def _paper_parser(sub) -> None:
         "density and each curve's distance to it. Writes PNG (PDF with --pdf), CSV, JSON and .npz.",
         formatter_class=_Formatter,
     )
-    p.add_argument("--quick", action="store_true", help="smaller settings (about 2 minutes on 2 cores), labelled")
+    p.add_argument("--quick", action="store_true", help="smaller settings (MCS 1e4 samples instead of 1e5), labelled")
     p.add_argument("--pdf", action="store_true", help="also write the figures as PDF")
     p.add_argument("--points", type=_count(2), default=None, help="DPIM points (default: 1000)")
     p.add_argument("--samples", type=_count(2), default=None, help="MCS samples (default: 1e5; 1e4 with --quick)")
