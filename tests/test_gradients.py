@@ -198,7 +198,7 @@ def test_changing_parameters_does_not_retrace(tiny):
 
 @pytest.mark.slow
 def test_jit_grad_agrees_with_forward_mode(tiny):
-    """Reverse mode of the whole pipeline under jit (slow: about 2 minutes of compilation on 2 cores)."""
+    """Reverse mode of the whole pipeline under jit (slow: its compilation dominates)."""
     scene, points = tiny
     g = float(jax.jit(jax.grad(lambda a: _loss(scene, points, a)))(jnp.float32(0.11)))
     # float32: forward and reverse accumulate in different orders

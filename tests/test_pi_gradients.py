@@ -54,7 +54,7 @@ def _three_ways(f, p0):
 
 
 # On the default grid the same comparison is within 4e-4 in every cell of gamma x r x extents but one
-# (docs/path_integration.md, "Derivatives"); before (GMRES(60), Lagrange weights) reverse mode was 9-12 % off.
+# (docs/path_integration.md, "Derivatives"); GMRES(60) with Lagrange weights leaves reverse mode 9-12 % off.
 @pytest.mark.parametrize(
     ("gamma", "r", "extent"),
     [
