@@ -109,7 +109,7 @@ def test_damper_relative_displacement_is_bounded_and_matches_a_histogram(damper)
             (-2 * C - edges + 4 * C * k, -1) for k in range(-2, 3)
         ]
         smoothed = sum(sgn * np.sum(h * np.diff(scipy.stats.norm.cdf((e - wall) / sigma))) for e, sgn in images)
-        assert p[i] == pytest.approx(smoothed, abs=0.5 * se[i])
+        assert p[i] == pytest.approx(smoothed, abs=float(0.5 * se[i]))
         assert plain[i] < 0.6 * smoothed
 
 
