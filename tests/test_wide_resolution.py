@@ -7,12 +7,13 @@ import numpy as np
 import pytest
 
 import jdpim
-from jdpim import _integrate
+from jdpim._engine import batches, elementwise
 
 
 def _states(scene, n, wide, monkeypatch, branch_free=True, **method):
-    monkeypatch.setattr(_integrate, "WIDE_CHUNK", 64 if wide else 2**62)
-    monkeypatch.setattr(_integrate, "on_cpu", lambda: not branch_free)
+    monkeypatch.setattr(batches, "WIDE_CHUNK", 64 if wide else 2**62)
+    for module in (batches, elementwise):
+        monkeypatch.setattr(module, "on_cpu", lambda: not branch_free)
     jax.clear_caches()  # the threshold is read when the step is traced
     res = jdpim.solve(scene, jdpim.MonteCarlo(n_samples=n, seed=3, chunk_size=n, **method))
     return np.asarray(res.states)
@@ -63,8 +64,9 @@ def test_reverse_mode_through_the_wide_resolution(monkeypatch):
     """``jax.grad`` of E[x^2] at t = 0.5 s with respect to the restitution, through the wide resolution (64 paths
     from the barrier's side, every one crossing at once, so the lanes serve most of them too), against central
     differences of the same paths."""
-    monkeypatch.setattr(_integrate, "WIDE_CHUNK", 16)
-    monkeypatch.setattr(_integrate, "on_cpu", lambda: False)
+    monkeypatch.setattr(batches, "WIDE_CHUNK", 16)
+    for module in (batches, elementwise):
+        monkeypatch.setattr(module, "on_cpu", lambda: False)
     jax.clear_caches()
     scene = _one_dof(jdpim.GaussianNodes(), t_end=0.5, x0=1e-3, v0=-1.0)
 
@@ -84,4 +86,4 @@ def test_reverse_mode_through_the_wide_resolution(monkeypatch):
 )
 def test_batch_rows_are_a_multiple_of_eight_above_it(n, wide, rows):
     """Batches above ``BATCH_ROWS`` rows are rounded up to a multiple of it (odd ones ran 2x slower on a CPU)."""
-    assert _integrate.batch_rows(n, wide) == rows
+    assert batches.batch_rows(n, wide) == rows
