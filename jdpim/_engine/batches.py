@@ -95,8 +95,9 @@ def unpack(packing: Packing, rows):
     """``(y0, tau0, y1, e, rand, h, held_columns)`` of the rows of a batch (:func:`pack`)."""
     parts = jnp.split(rows, list(itertools.accumulate(packing.widths))[:-1], axis=1)
     q0, v0, t0, q1, v1, e0, e1, e2, r = parts[:9]
+    t0 = t0[:, 0]
     h = parts[9][:, 0] if packing.h is None else packing.h
-    return (q0, v0), t0[:, 0], (q1, v1), (e0, e1, e2), r, h, parts[-2:]
+    return (q0, v0), t0, (q1, v1), (e0, e1, e2), r, h, parts[-2:]
 
 
 def resolve_batch_held(eng: Engine, b0, t0, b1, be, br, bh, held_columns, wide):

@@ -63,18 +63,22 @@ def per_path(fn, eng: Engine, h):
 
 
 def free(eng: Engine, q, v, e, rand, tau0, h):
+    """One path's free RK4 step from the fraction ``tau0`` of the step to its end."""
     return rk4(eng.path_model(rand), q, v, e, h, tau0, 1.0)
 
 
 def free_from_start(eng: Engine, q, v, e, rand, h):
+    """One path's free RK4 step over the whole step."""
     return rk4(eng.path_model(rand), q, v, e, h)  # fractions 0 and 1: no interpolation of the forcing
 
 
 def resolve(eng: Engine, y0, tau0, y1, last, e, rand, h):
+    """One path's first impact in the rest of the step (:func:`resolve_one`)."""
     return resolve_one(eng.path_model(rand), eng.rule, h, y0, tau0, y1, last, e)
 
 
 def resolve_event(eng: Engine, y0, tau0, y1, force, last, held, located, e, rand, h):
+    """One path's next event in the rest of the step, held on constraints (:func:`resolve_held`)."""
     return resolve_held(eng.path_model(rand), eng.rule, h, y0, tau0, y1, force, last, held, located, e, eng.hold)
 
 
@@ -90,6 +94,7 @@ def start_held(eng: Engine, q, v, e, rand, h):
 
 
 def mirrored(eng: Engine, q, v, rand):
+    """One path's state reflected through every constraint it violates (:func:`mirror`)."""
     return mirror(eng.path_model(rand), q, v)
 
 
@@ -99,6 +104,7 @@ def constraint_values(eng: Engine, q, rand):
 
 
 def violates(eng: Engine, q, rand):
+    """Whether one path's ``q`` violates a constraint."""
     c = constraint_values(eng, q, rand)
     return c[0] < 0 if c.shape[0] == 1 else jnp.any(c < 0)
 
