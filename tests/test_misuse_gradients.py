@@ -217,8 +217,9 @@ def _many_result(theta, rows):
 
 
 @pytest.mark.parametrize("heavy", [True, False])
-@pytest.mark.parametrize("transform", ["grad", "jacfwd"])
+@pytest.mark.parametrize("transform", ["grad", "jacrev"])
 def test_many_parameters_are_checked_along_projections(transform, heavy):
+    """Reverse mode over more than ``MAX_DIRECTIONS`` scalars (forward mode is checked by ``Result.pdf`` itself)."""
     from jdpim.methods._ad_guard import MAX_DIRECTIONS
 
     assert P_MANY > MAX_DIRECTIONS
