@@ -155,7 +155,7 @@ def quantity_grids(results, quantities: dict, times, n_grid: int, q: float = 0.9
 
 
 def _has_error(res) -> bool:
-    """Whether ``res.pdf_stderr`` has an estimate: Monte Carlo, or path integration with ``estimate_error``."""
+    """Whether ``res.pdf_error`` has an estimate: Monte Carlo, or path integration with ``estimate_error``."""
     return res.method == "monte_carlo" or getattr(res, "coarse", None) is not None
 
 
@@ -196,7 +196,7 @@ def densities(results: dict, times, grids: dict, joints=None, joint_times=(), qu
 
     Returns:
         ``<name>_pdf_<var>``, shape ``(len(times), len(grid))``; ``<name>_stderr_<var>`` of the same shape
-        where the result has an error estimate (``pdf_stderr``); ``<name>_atoms_<var>``, shape ``(len(times), 2)``,
+        where the result has an error estimate (``pdf_error``); ``<name>_atoms_<var>``, shape ``(len(times), 2)``,
         the probability held at the lower and upper bound of a bounded ``var`` (``Result.atoms``; the density
         leaves it out); ``<name>_<joint_name(pair)>``, shape ``(len(joint_times), len(grid_a), len(grid_b))``,
         for each pair of ``joints``.
@@ -210,7 +210,7 @@ def densities(results: dict, times, grids: dict, joints=None, joint_times=(), qu
             _check_spread(res, var, at, key)
             arrays[f"{name}_pdf_{key}"] = np.stack([np.asarray(res.pdf(var, g, t)) for t in at])
             if _has_error(res):
-                arrays[f"{name}_stderr_{key}"] = np.stack([np.asarray(res.pdf_stderr(var, g, t)) for t in at])
+                arrays[f"{name}_stderr_{key}"] = np.stack([np.asarray(res.pdf_error(var, g, t)) for t in at])
             if hasattr(res, "atoms") and any(b is not None for b in res.bounds(var)):
                 arrays[f"{name}_atoms_{key}"] = np.stack([np.asarray(res.atoms(var, t)) for t in at])
         for pair, pair_grids in (joints or {}).items():

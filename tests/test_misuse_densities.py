@@ -86,7 +86,7 @@ def test_damper_relative_displacement_is_bounded_and_matches_a_histogram(damper)
     kernel without reflection shows about half of it)."""
     assert damper.bounds(gap) == pytest.approx((-C, C))
     g = np.linspace(-C, C, 801)  # the walls, and the centres of 40 bins at every 20th node from the 10th
-    p, se = np.asarray(damper.pdf(gap, g)), np.asarray(damper.pdf_stderr(gap, g))
+    p, se = np.asarray(damper.pdf(gap, g)), np.asarray(damper.pdf_error(gap, g))
     assert np.trapezoid(p, g) == pytest.approx(1.0, abs=1e-4)
     np.testing.assert_array_equal(np.asarray(damper.atoms(gap)), [0.0, 0.0])  # white noise reaches the gap: no sticking
 

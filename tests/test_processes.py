@@ -35,7 +35,7 @@ def compute() -> dict:
         "mc": np.asarray(mc.states),
         "dpim": np.asarray(dp.states),
         "pdf": np.asarray(mc.pdf("x", grid, 2.0)),
-        "pdf_stderr": np.asarray(mc.pdf_stderr("x", grid, 2.0)),
+        "pdf_error": np.asarray(mc.pdf_error("x", grid, 2.0)),
         "first_passage": np.asarray(fp.probability),
         "stderr": np.asarray(fp.stderr),
     }

@@ -17,7 +17,7 @@ RESULTS = (jdpim.Result, jdpim.GridResult)
 def test_every_public_result_class_implements_the_interface_with_its_signatures():
     public = {c for c in vars(jdpim).values() if isinstance(c, type) and issubclass(c, AbstractResult)}
     assert public == set(RESULTS)
-    assert {"pdf", "pdf_stderr", "joint_pdf", "moment", "mass", "bounds", "atoms"} <= AbstractResult.__abstractmethods__
+    assert {"pdf", "pdf_error", "joint_pdf", "moment", "mass", "bounds", "atoms"} <= AbstractResult.__abstractmethods__
     for cls in RESULTS:
         assert not cls.__abstractmethods__, cls
         for name in sorted(AbstractResult.__abstractmethods__):
@@ -73,7 +73,7 @@ def test_grid_bounds_atoms_and_error():
     g = jnp.linspace(0.1, 1.9, 5)
     for kw in ({}, {"bandwidth": 0.3}, {"bandwidth": 0.3, "bounds": (0.0, 2.0)}):
         expect = np.abs(np.asarray(res.pdf("x", g, **kw)) - np.asarray(res.coarse.pdf("x", g, **kw)))
-        np.testing.assert_array_equal(np.asarray(res.pdf_stderr("x", g, **kw)), expect)
+        np.testing.assert_array_equal(np.asarray(res.pdf_error("x", g, **kw)), expect)
     reflected = np.asarray(res.pdf("x", g, bandwidth=0.3, bounds=(0.0, 2.0)))
     assert not np.allclose(reflected, np.asarray(res.pdf("x", g, bandwidth=0.3)))  # the upper end reflects too
     with pytest.raises(ValueError, match=r"bounds=\[0.0, 2.0\] for the interpolated grid density of 'x'"):
@@ -81,4 +81,4 @@ def test_grid_bounds_atoms_and_error():
     with pytest.raises(ValueError, match="rule must be one of"):
         res.pdf("x", g, rule="sturges")
     with pytest.raises(ValueError, match="carries no error estimate"):
-        _grid_result().pdf_stderr("x", g)
+        _grid_result().pdf_error("x", g)

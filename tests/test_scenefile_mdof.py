@@ -87,7 +87,7 @@ def test_run_stores_every_coordinate_and_equals_solve_on_the_scene_built_by_hand
                 close = {"rtol": 1e-5, "atol": 1e-6 * arrays[f"{name}_pdf_{c}"].max()}
                 np.testing.assert_allclose(arrays[f"{name}_pdf_{c}"][i], res.pdf(c, grid, t), **close)
                 if name == "monte_carlo":
-                    np.testing.assert_allclose(arrays[f"{name}_stderr_{c}"][i], res.pdf_stderr(c, grid, t), **close)
+                    np.testing.assert_allclose(arrays[f"{name}_stderr_{c}"][i], res.pdf_error(c, grid, t), **close)
             np.testing.assert_allclose(
                 arrays[f"{name}_joint_x1_x2"][i], res.joint_pdf(("x1", "x2"), joint, t), rtol=1e-5, atol=1e-6
             )
@@ -96,7 +96,7 @@ def test_run_stores_every_coordinate_and_equals_solve_on_the_scene_built_by_hand
             close = {"rtol": 1e-5, "atol": 1e-6 * arrays[f"{name}_pdf_gap"].max()}
             np.testing.assert_allclose(arrays[f"{name}_pdf_gap"][i], res.pdf(gap, grid, t), **close)
             if name == "monte_carlo":
-                np.testing.assert_allclose(arrays[f"{name}_stderr_gap"][i], res.pdf_stderr(gap, grid, t), **close)
+                np.testing.assert_allclose(arrays[f"{name}_stderr_gap"][i], res.pdf_error(gap, grid, t), **close)
     assert "dpim_stderr_x1" not in arrays  # DPIM points are not independent samples
 
 

@@ -103,7 +103,7 @@ def test_grid_error_estimate_covers_the_exact_error():
         err_x = metrics.l1(np.asarray(res.pdf("x", xs, 5.0)), exact.elastic_linear_pdf_x(xs, alpha, D, 5.0), xs)
         err_v = metrics.l1(np.asarray(res.pdf("v", vs, 5.0)), exact.elastic_linear_pdf_v(vs, alpha, D, 5.0), vs)
         est_x, est_v = float(res.l1_error("x", 5.0)), float(res.l1_error("v", 5.0))
-        pointwise = np.asarray(res.pdf_stderr("x", xs, 5.0))
+        pointwise = np.asarray(res.pdf_error("x", xs, 5.0))
     assert err_x < est_x < 20 * err_x and err_v < est_v < 20 * err_v, (err_x, est_x, err_v, est_v)
     assert pointwise.shape == xs.shape and np.all(pointwise >= 0)
     with pytest.raises(ValueError, match="estimate_error=True"):

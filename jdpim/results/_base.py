@@ -39,7 +39,7 @@ class AbstractResult(Labelled, abc.ABC):
         ``grid``. It integrates to ``mass(t) - sum(atoms(var, t))``."""
 
     @abc.abstractmethod
-    def pdf_stderr(self, var, grid, t: float | None = None, *, bandwidth=None, rule: str = "chen", bounds=None):
+    def pdf_error(self, var, grid, t: float | None = None, *, bandwidth=None, rule: str = "chen", bounds=None):
         """The error of :meth:`pdf` (same arguments), shaped like ``grid``: the sampling standard error of Monte
         Carlo, the estimated discretisation error of path integration; a ``ValueError`` that names the remedy
         where the result carries none."""

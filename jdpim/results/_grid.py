@@ -45,7 +45,7 @@ class GridResult(AbstractResult):
             time derivative of ``E[(x - b) v]``; impacts happen at ``x = b`` and add nothing): a check of the
             grid's resolution, chiefly of the velocity marginal (``nan`` for a transient result).
         coarse: the same solve on a grid twice as coarse (``PathIntegration(estimate_error=True)``), from
-            which ``pdf_stderr`` and ``l1_error`` estimate the discretisation error; else ``None``.
+            which ``pdf_error`` and ``l1_error`` estimate the discretisation error; else ``None``.
         order: interpolation points per axis of the solve (2, 4 or 6; see ``jdpim.PathIntegration``).
         folded: whether the solve folded ghost nodes back at the barrier (``order > 2`` with a barrier):
             then the density's continuation beyond the barrier is its mirror image.
@@ -247,7 +247,7 @@ class GridResult(AbstractResult):
             )
         return self.coarse
 
-    def pdf_stderr(self, var, grid, t: float | None = None, *, bandwidth=None, rule: str = "chen", bounds=None):
+    def pdf_error(self, var, grid, t: float | None = None, *, bandwidth=None, rule: str = "chen", bounds=None):
         """Estimated discretisation error of :meth:`pdf` (same arguments): ``|pdf - pdf on the coarse grid|`` at the
         same bandwidth, shaped like ``grid``; it takes the place of a standard error (path integration has no
         sampling error). Needs ``jdpim.PathIntegration(estimate_error=True)``.

@@ -282,7 +282,7 @@ class Result(AbstractResult):
         y = watch_forward(y, jax.tree_util.Partial(_kernel_contributions, w, grid, sigma, lim))
         return _density.kde(y, w, grid, sigma, bounds=lim)
 
-    def pdf_stderr(self, var, grid, t: float | None = None, *, bandwidth=None, rule: str = "chen", bounds=None):
+    def pdf_error(self, var, grid, t: float | None = None, *, bandwidth=None, rule: str = "chen", bounds=None):
         r"""Sampling standard error of :meth:`pdf` (same arguments): Monte Carlo results only.
 
         From the per-path kernel contributions ``K_q(y)``: ``se(y)^2 = sum_q K_q(y)^2 / n^2 - p(y)^2 / n``
@@ -292,7 +292,7 @@ class Result(AbstractResult):
         """
         if self.method != "monte_carlo":
             raise ValueError(
-                f"pdf_stderr of a sampling result needs independent samples (method 'monte_carlo'), got method "
+                f"pdf_error of a sampling result needs independent samples (method 'monte_carlo'), got method "
                 f"{self.method!r}; for DPIM use jdpim.dpim_replicates"
             )
         check_points("grid", grid)
