@@ -83,6 +83,11 @@ from .systems import gear_pair as gear_pair
 from .systems import impact_damper as impact_damper
 from .systems import pounding_frame as pounding_frame
 
+# quake: non-stationary excitation, exact covariance, response statistics (issue 47)
+from ._envelopes import AminAng as AminAng
+from ._envelopes import Jennings as Jennings
+from .filters import clough_penzien as clough_penzien
+
 try:
     __version__ = _metadata.version("jdpim")
 except _metadata.PackageNotFoundError:  # running from a source tree without installation
