@@ -30,6 +30,9 @@ import jax
 import numpy as np
 from scipy import integrate, linalg, special
 
+from ._models import AbstractOscillator
+from .filters import as_mdof
+
 
 def linear_covariance(alpha: float, D: float, t: float) -> tuple[float, float, float]:
     r"""``(E[s^2], E[s'^2], E[s s'])`` of ``s'' + alpha s' + s = xi`` from rest, ``E[xi xi] = 2 D delta``.
@@ -160,9 +163,6 @@ def _marginal(joint, y, axis: int, n: int):
 def _state_space(model, noise) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(A, G, Q)`` of a linear ``model`` (a one-degree-of-freedom oscillator is lifted by
     ``jdpim.filters.as_mdof``): ``y' = A y + G xi``, ``(2 n, 2 n)`` and ``(2 n, m)``; ``Q = 2 D``, ``(m, m)``."""
-    from .filters import as_mdof  # the filters import the models; a reference stays a leaf of the package
-    from ._models import AbstractOscillator
-
     mdof = as_mdof(model) if isinstance(model, AbstractOscillator) else model
     if mdof.has_barrier or getattr(mdof, "force", None) is not None:
         raise ValueError(
@@ -257,4 +257,9 @@ def linear_autocorrelation(model, noise, lags) -> np.ndarray:
     noise.require_stationary("linear_autocorrelation", "give a WhiteNoise without an envelope")
     P = linalg.solve_continuous_lyapunov(A, -G @ Q @ G.T)
     lags = np.abs(np.atleast_1d(np.asarray(lags, float)))
-    return np.stack([np.diag(P @ linalg.expm(A.T * tau)) for tau in lags])
+    lam, V = np.linalg.eig(A.T)
+    if np.linalg.cond(V) < 1e8:  # e^{A^T tau} = V e^{Lambda tau} V^-1, all lags at once
+        E = np.einsum("ik,tk,kj->tij", V, np.exp(np.outer(lags, lam)), np.linalg.inv(V)).real
+    else:  # a defective (critically damped) mode
+        E = np.stack([linalg.expm(A.T * tau) for tau in lags])
+    return np.einsum("ij,tji->ti", P, E)  # the diagonal of P e^{A^T tau}

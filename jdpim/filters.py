@@ -64,7 +64,8 @@ def as_mdof(model: AbstractOscillator) -> MDOFOscillator:
 
     ``x'' + g(x) + f(x, x') = h . xi`` becomes ``M = [[1]]``, ``B = h`` (a row: the gains must not depend on
     the state), the barrier the constraint ``x >= b`` with restitution ``r``; the coordinate keeps its name
-    ``x``. For :class:`jdpim.VibroImpactOscillator` the linear terms are the matrices ``C = [[alpha]]``,
+    ``x``, and paths start at the barrier where a scene gives no ``x0``, as for the oscillator itself. For
+    :class:`jdpim.VibroImpactOscillator` the linear terms are the matrices ``C = [[alpha]]``,
     ``K = [[omega^2]]`` and the cubic damping a force with ``params = gamma``; for other oscillators
     ``g`` and ``f`` are a force with ``params = model`` (the model's parameters stay traced leaves).
 
@@ -86,7 +87,9 @@ def as_mdof(model: AbstractOscillator) -> MDOFOscillator:
             f"({concrete(gains).ravel().tolist()} at rest, {moved.ravel().tolist()} at (x, v) = (0.7, -1.3))"
         )
     constraints = () if model.barrier is None else (Barrier((1.0,), model.barrier, model.r),)
-    common = {"mass": np.ones((1, 1)), "gains": gains, "constraints": constraints, "names": ("x",)}
+    barrier = None if model.barrier is None else concrete(model.barrier)
+    start = None if barrier is None else (float(barrier),)  # a scene without x0 starts at the barrier
+    common = {"mass": np.ones((1, 1)), "gains": gains, "constraints": constraints, "names": ("x",), "start": start}
     if isinstance(model, VibroImpactOscillator):
         damping = None if model.alpha is None else jnp.reshape(jnp.asarray(model.alpha), (1, 1))
         force = None if model.gamma is None else _cubic_damping
