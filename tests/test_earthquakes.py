@@ -147,14 +147,17 @@ def test_clough_penzien_ground_acceleration_spectrum():
 
 
 def test_filters_on_one_degree_of_freedom():
-    """A lifted oscillator (barrier, cubic damping) has the original's paths; filters append to it; gains that
-    depend on the state are refused."""
+    """A lifted oscillator (barrier, cubic damping) has the original's accelerations, impact law and start; filters
+    append to it; gains that depend on the state are refused."""
     model = jdpim.VibroImpactOscillator(alpha=0.1, gamma=0.05, r=0.8, barrier=-0.5, omega=1.2)
     lifted = jdpim.filters.as_mdof(model)
-    scene = jdpim.Scene(model, noise=jdpim.WhiteNoise(D=0.1), t_end=2.0, dt=0.01, save_at=(1.0, 2.0))
-    a = jdpim.solve(scene, jdpim.MonteCarlo(n_samples=16, seed=3))
-    b = jdpim.solve(scene.replace(model=lifted), jdpim.MonteCarlo(n_samples=16, seed=3))
-    np.testing.assert_allclose(np.asarray(b.states), np.asarray(a.states), rtol=0, atol=1e-4)
+    q, v, xi = np.random.default_rng(0).normal(size=(3, 50, 1)).astype(np.float32)
+    accelerations = [jax.vmap(m.state_acceleration)(q, v, xi) for m in (model, lifted)]
+    np.testing.assert_allclose(*accelerations, rtol=1e-5, atol=1e-6)
+    a, b = model.stacked_constraints(), lifted.stacked_constraints()
+    for field in ("normal", "position", "r", "push"):
+        np.testing.assert_allclose(np.asarray(getattr(b, field)), np.asarray(getattr(a, field)), rtol=1e-6)
+    assert lifted.start == (-0.5,) and lifted.coordinates == model.coordinates
     assert jdpim.kanai_tajimi(model).coordinates == ("x", "xf", "v", "vf")
     assert jdpim.first_order_filter(model, a=2.0).coordinates == ("x", "xf", "v", "vf")
     assert jdpim.harmonic(model, amplitude=0.1, frequency=0.9).start == (-0.5, 1.0)  # at the barrier
