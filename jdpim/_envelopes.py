@@ -71,8 +71,8 @@ class Jennings:
     Example:
         >>> import jdpim
         >>> env = jdpim.Jennings(t1=2.0, t2=6.0, c=0.5)
-        >>> [round(float(env(t)), 4) for t in (1.0, 4.0, 8.0)]
-        [0.25, 1.0, 0.3679]
+        >>> tuple(round(float(env(t)), 4) for t in (1.0, 4.0, 8.0))
+        (0.25, 1.0, 0.3679)
     """
 
     t1: float = 2.0

@@ -84,7 +84,7 @@ def as_mdof(model: AbstractOscillator) -> MDOFOscillator:
     if moved is not None and concrete(gains) is not None and not np.array_equal(moved, concrete(gains)):
         raise ValueError(
             f"a filter needs additive noise, but {type(model).__name__}'s gains depend on the state "
-            f"({concrete(gains).ravel().tolist()} at rest, {moved.ravel().tolist()} at (x, v) = (0.7, -1.3))"
+            f"({_numbers(concrete(gains))} at rest, {_numbers(moved)} at (x, v) = (0.7, -1.3))"
         )
     constraints = () if model.barrier is None else (Barrier((1.0,), model.barrier, model.r),)
     barrier = None if model.barrier is None else concrete(model.barrier)
@@ -96,6 +96,11 @@ def as_mdof(model: AbstractOscillator) -> MDOFOscillator:
         stiffness = jnp.reshape(jnp.asarray(model.omega) ** 2, (1, 1))
         return MDOFOscillator(damping=damping, stiffness=stiffness, force=force, params=model.gamma, **common)
     return MDOFOscillator(force=_oscillator_force, params=model, **common)
+
+
+def _numbers(values) -> str:
+    """``values`` as ``[a, b, ...]`` with 6 significant digits."""
+    return "[" + ", ".join(f"{float(a):.6g}" for a in np.ravel(values)) + "]"
 
 
 def _structure(model) -> MDOFOscillator:

@@ -107,7 +107,7 @@ def response_moments(result, var) -> ResponseMoments:
         >>> import jdpim
         >>> model = jdpim.VibroImpactOscillator(alpha=0.2, gamma=None, barrier=None)
         >>> scene = jdpim.Scene(model, noise=jdpim.WhiteNoise(D=0.1), t_end=2.0, dt=0.01, save_at=(1.0, 2.0))
-        >>> stats = jdpim.response_moments(jdpim.solve(scene, jdpim.MonteCarlo(n_samples=500, seed=0)), "x")
+        >>> stats = jdpim.response_moments(jdpim.solve(scene, jdpim.MonteCarlo(n_samples=100, seed=0)), "x")
         >>> stats.variance.shape, stats.variance_stderr.shape
         ((2,), (2,))
     """
