@@ -89,13 +89,23 @@ def as_mdof(model: AbstractOscillator) -> MDOFOscillator:
     constraints = () if model.barrier is None else (Barrier((1.0,), model.barrier, model.r),)
     barrier = None if model.barrier is None else concrete(model.barrier)
     start = None if barrier is None else (float(barrier),)  # a scene without x0 starts at the barrier
+    gains = gains if concrete(gains) is None else np.asarray(concrete(gains), dtype=float)
     common = {"mass": np.ones((1, 1)), "gains": gains, "constraints": constraints, "names": ("x",), "start": start}
     if isinstance(model, VibroImpactOscillator):
-        damping = None if model.alpha is None else jnp.reshape(jnp.asarray(model.alpha), (1, 1))
+        damping = None if model.alpha is None else _one_by_one(model.alpha)
         force = None if model.gamma is None else _cubic_damping
-        stiffness = jnp.reshape(jnp.asarray(model.omega) ** 2, (1, 1))
+        stiffness = _one_by_one(model.omega, power=2)
         return MDOFOscillator(damping=damping, stiffness=stiffness, force=force, params=model.gamma, **common)
     return MDOFOscillator(force=_oscillator_force, params=model, **common)
+
+
+def _one_by_one(value, power: int = 1):
+    """``[[value^power]]``: float64 NumPy where ``value`` is a number (as the matrices of a model built from
+    numbers), else traced."""
+    number = concrete(value)
+    if number is None:
+        return jnp.reshape(jnp.asarray(value) ** power, (1, 1))
+    return np.reshape(float(number) ** power, (1, 1))
 
 
 def _numbers(values) -> str:
