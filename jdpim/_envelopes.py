@@ -7,6 +7,7 @@ dataclasses of floats (static: a new value recompiles).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
 import jax
@@ -108,13 +109,21 @@ def check_envelope(envelope) -> None:
         raise TypeError(
             f"envelope must be hashable (it is static structure: a function, or a frozen dataclass), got {envelope!r}"
         ) from None
+    message = _traced_scalar(envelope)
+    if message:
+        raise TypeError(message)
+
+
+@functools.lru_cache(maxsize=256)
+def _traced_scalar(envelope) -> str:
+    """``""`` where ``envelope`` traces to a real scalar on a scalar time, else why not (cached: the noise is
+    rebuilt at every pytree unflattening)."""
     try:
         out = jax.eval_shape(envelope, jax.ShapeDtypeStruct((), jnp.zeros(()).dtype))
     except Exception as err:  # noqa: BLE001 - any failure to trace is the user's function's
-        raise TypeError(
-            f"envelope must be a function e(t) that JAX can trace on a scalar time; {envelope!r} failed: {err}"
-        ) from None
+        return f"envelope must be a function e(t) that JAX can trace on a scalar time; {envelope!r} failed: {err}"
     shape, dtype = getattr(out, "shape", None), getattr(out, "dtype", None)
     real = dtype is not None and jnp.issubdtype(dtype, jnp.number) and not jnp.issubdtype(dtype, jnp.complexfloating)
     if shape != () or not real:
-        raise TypeError(f"envelope must return a real scalar for a scalar time, got shape {shape} and dtype {dtype}")
+        return f"envelope must return a real scalar for a scalar time, got shape {shape} and dtype {dtype}"
+    return ""
