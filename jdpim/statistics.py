@@ -154,8 +154,8 @@ def response_psd(result, var, *, segment: int, start: float | None = None) -> Re
         \qquad \omega_k = \frac{2\pi k}{\text{segment}\cdot dt},
 
     averaged over the segments of a path, then over the paths. Its expectation is the true density smoothed by
-    the window's kernel, of width about ``4 pi / (segment dt)`` (longer segments: less bias, fewer
-    segments); the variance falls as one over the number of paths times segments.
+    the window's kernel, whose main lobe has the half-width ``4 pi / (segment dt)`` (longer segments: less bias,
+    fewer segments); the variance falls as one over the number of paths times segments.
 
     Args:
         result: a result of ``jdpim.solve`` (or DPIM replicates) with equally spaced saved times.
