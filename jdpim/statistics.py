@@ -104,12 +104,12 @@ def response_moments(result, var) -> ResponseMoments:
         var: a coordinate name or a function of the state.
 
     Examples:
-        >>> import jdpim
-        >>> model = jdpim.VibroImpactOscillator(alpha=0.2, gamma=None, barrier=None)
-        >>> scene = jdpim.Scene(model, noise=jdpim.WhiteNoise(D=0.1), t_end=2.0, dt=0.01, save_at=(1.0, 2.0))
-        >>> stats = jdpim.response_moments(jdpim.solve(scene, jdpim.MonteCarlo(n_samples=100, seed=0)), "x")
+        >>> import jdpim, numpy as np
+        >>> states = np.random.default_rng(0).normal(size=(500, 3, 2))  # 500 paths, 3 saved times, (x, v)
+        >>> mc = jdpim.Result(times=(1.0, 2.0, 3.0), states=states, weights=np.full(500, 1 / 500), method="monte_carlo")
+        >>> stats = jdpim.response_moments(mc, "x")
         >>> stats.variance.shape, stats.variance_stderr.shape
-        ((2,), (2,))
+        ((3,), (3,))
     """
     results = _results(result)
     if len(results) > 1:
@@ -165,12 +165,12 @@ def response_psd(result, var, *, segment: int, start: float | None = None) -> Re
             stationary from there on (after the transient from the initial state).
 
     Examples:
-        >>> import jdpim
-        >>> model = jdpim.VibroImpactOscillator(alpha=0.5, gamma=None, barrier=None)
-        >>> scene = jdpim.Scene(model, noise=jdpim.WhiteNoise(D=0.1), t_end=20.0, dt=0.1,
-        ...                     save_at=tuple(0.2 * k for k in range(50, 101)))
-        >>> mc = jdpim.solve(scene, jdpim.MonteCarlo(n_samples=50, seed=0))
-        >>> jdpim.response_psd(mc, "x", segment=20).frequencies.shape
+        >>> import jdpim, numpy as np
+        >>> states = np.random.default_rng(0).normal(size=(50, 100, 2))  # white: S = 0.1 / (2 pi) per rad/s
+        >>> mc = jdpim.Result(times=tuple(0.1 * k for k in range(100)), states=states, weights=np.full(50, 0.02),
+        ...                   method="monte_carlo")
+        >>> spectrum = jdpim.response_psd(mc, "x", segment=20)
+        >>> spectrum.frequencies.shape
         (11,)
     """
     results = _results(result)
