@@ -37,11 +37,16 @@ def test_monte_carlo_variances_of_every_coordinate_follow_the_lyapunov_equation(
     (``sqrt((m4 - m2^2) / N)``, ``N = 4000``) of the exact variance; the means within 3 of 0."""
     res = jdpim.solve(frame_scene, jdpim.MonteCarlo(n_samples=N_SAMPLES, seed=0))
     names = frame_scene.model.coordinates
+    zs = []
     for i, name in enumerate(names):
         stats = jdpim.response_moments(res, name)
         z = (np.asarray(stats.variance) - frame_exact[:, i]) / np.asarray(stats.variance_stderr)
         assert np.all(np.abs(z) < 3.0), (name, np.round(z, 2))
         assert np.all(np.abs(np.asarray(stats.mean) / np.asarray(stats.mean_stderr)) < 3.0), name
+        zs.append(z)
+    print(
+        f"\nMonte Carlo variances: max |z| {np.abs(zs).max():.2f}, {np.sum(np.abs(zs) < 2)} of {np.size(zs)} within 2"
+    )
     assert stats.times == TIMES
     x2 = frame_exact[:, names.index("x2")]
     assert x2.argmax() not in (0, len(TIMES) - 1)  # the response builds up and decays within the record
@@ -56,8 +61,11 @@ def test_dpim_variances_within_their_replicate_spread(frame_scene, frame_exact):
     for name in ("x1", "x2", "v1", "v2"):
         stats = jdpim.response_moments(runs, name)
         spread = np.asarray(stats.variance_stderr) * np.sqrt(len(runs))
-        z = (np.asarray(stats.variance) - frame_exact[:, names.index(name)]) / spread
+        exact = frame_exact[:, names.index(name)]
+        z = (np.asarray(stats.variance) - exact) / spread
         assert np.all(np.abs(z) < 3.0), (name, np.round(z, 2))
+        relative = np.abs(np.asarray(stats.variance) / exact - 1).max()
+        print(f"\nDPIM {name}: max deviation {np.abs(z).max():.2f} spreads, relative error {relative:.3f}")
     one = jdpim.response_moments(runs[0], "x1")
     assert one.variance_stderr is None and one.method == "dpim"
 
@@ -101,6 +109,11 @@ def test_psd_of_a_linear_oscillator(stationary):
     z = ((psd - exact) / se)[band]
     assert band.sum() == 49 and np.all(np.abs(z) < 3.0), np.round(z, 2)
     assert np.mean(np.abs(z) < 2.0) >= 0.9, np.round(z, 2)
+    bias = np.abs(expected - exact)[band] / se[band]
+    print(
+        f"\nPSD: kernel bias <= {bias.max():.2f} SE, {np.sum(np.abs(z) < 2)} of {band.sum()} within 2 SE, "
+        f"max |z| {np.abs(z).max():.2f}, relative SE <= {(se / psd)[band].max():.3f}"
+    )
     assert spectrum.times[0] == BURN and len(spectrum.times) == SEGMENT // 2 * 5
 
 
