@@ -83,6 +83,18 @@ from .systems import gear_pair as gear_pair
 from .systems import impact_damper as impact_damper
 from .systems import pounding_frame as pounding_frame
 
+# isort: split
+# quake: non-stationary excitation, exact covariance, response statistics (issue 47)
+from . import statistics as statistics
+from ._envelopes import Jennings as Jennings
+from .filters import clough_penzien as clough_penzien
+from .statistics import ResponseAutocorrelation as ResponseAutocorrelation
+from .statistics import ResponseMoments as ResponseMoments
+from .statistics import ResponseSpectrum as ResponseSpectrum
+from .statistics import response_autocorrelation as response_autocorrelation
+from .statistics import response_moments as response_moments
+from .statistics import response_psd as response_psd
+
 try:
     __version__ = _metadata.version("jdpim")
 except _metadata.PackageNotFoundError:  # running from a source tree without installation
