@@ -83,6 +83,13 @@ from .systems import gear_pair as gear_pair
 from .systems import impact_damper as impact_damper
 from .systems import pounding_frame as pounding_frame
 
+# isort: split
+# pounding: adjacent buildings, fragility curves (issue 47)
+from .reliability import Fragility as Fragility
+from .reliability import FragilityWarning as FragilityWarning
+from .reliability import fragility as fragility
+from .systems import adjacent_buildings as adjacent_buildings
+
 try:
     __version__ = _metadata.version("jdpim")
 except _metadata.PackageNotFoundError:  # running from a source tree without installation
