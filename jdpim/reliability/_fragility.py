@@ -19,7 +19,7 @@ import numpy as np
 from scipy import special
 
 from .._io import Persistent
-from .._pytree import concrete, pytree_dataclass, real_array, static_field
+from .._pytree import check_int, concrete, pytree_dataclass, real_array, static_field
 from .._scene import Scene, parameter_value, with_parameters
 from ..methods._monte_carlo import MonteCarlo
 from ..systems import _number
@@ -84,13 +84,29 @@ class Fragility(Persistent):
         return special.ndtr(eta), np.sqrt(variance)
 
 
-def wilson_interval(k, n: int, confidence: float) -> tuple:
-    """``(lower, upper)``: the Wilson score interval of a binomial proportion ``k / n`` at ``confidence``."""
-    z = special.ndtri(0.5 + 0.5 * confidence)
-    k = np.asarray(k, float)
+def wilson_interval(k, n: int, confidence: float = 0.95) -> tuple:
+    """``(lower, upper)``: the Wilson score interval of a binomial proportion ``k / n`` at ``confidence``.
+
+    Unlike ``p +- z stderr`` it stays inside [0, 1] and gives ``k = 0`` a positive upper bound.
+
+    Args:
+        k: counts, any shape (``p n`` for a Monte Carlo probability ``p`` of ``n`` paths).
+        n: the trials, >= 1.
+        confidence: in (0, 1).
+
+    Examples:
+        >>> import jdpim
+        >>> [round(float(b), 4) for b in jdpim.reliability.wilson_interval(0, 100)]
+        [0.0, 0.037]
+    """
+    n = check_int("n", n, low=1)
+    z = special.ndtri(0.5 + 0.5 * _number("confidence", confidence, low=0.0, high=1.0, low_open=True, high_open=True))
+    k = real_array("k", k, "counts")
+    if np.any(k < 0) or np.any(k > n):
+        raise ValueError(f"k must lie in [0, n = {n}], got {k.tolist()}")
     centre = (k + 0.5 * z * z) / (n + z * z)
     half = z / (n + z * z) * np.sqrt(k * (n - k) / n + 0.25 * z * z)
-    return np.clip(centre - half, 0.0, 1.0), np.clip(centre + half, 0.0, 1.0)
+    return np.where(k == 0, 0.0, centre - half), np.where(k == n, 1.0, centre + half)  # exact at the ends
 
 
 def _probit_terms(eta, k, n):
@@ -201,8 +217,8 @@ def fragility(
         for i, si in enumerate(s.tolist())
     ]
     n = method.n_samples
-    p = np.array([float(run.probability[-1, 0]) for run in runs])
-    counts = np.rint(p * n)
+    counts = np.rint(np.array([float(run.probability[-1, 0]) for run in runs]) * n)  # equal weights 1 / n
+    p = counts / n
     lower, upper = wilson_interval(counts, n, confidence)
     fit = fit_lognormal(s, counts, n)
     if fit is None:
