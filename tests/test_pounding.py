@@ -1,6 +1,9 @@
 """Adjacent buildings pounding: the frames, the closing of the gap, the probability of pounding as a first
 passage on the scene without contact, symmetric buildings, refusals."""
 
+import pathlib
+
+import jax
 import numpy as np
 import pytest
 
@@ -20,7 +23,9 @@ def scene_of(model):
 
 
 def test_the_frames():
-    model = jdpim.adjacent_buildings(n_storeys=(3, 2), frequency=(1.0, 2.0), damping_ratio=(0.05, 0.02), mass=(2.0, 1.0))
+    model = jdpim.adjacent_buildings(
+        n_storeys=(3, 2), frequency=(1.0, 2.0), damping_ratio=(0.05, 0.02), mass=(2.0, 1.0)
+    )
     assert model.coordinates[:5] == ("xa1", "xa2", "xa3", "xb1", "xb2")
     M, C, K = (np.asarray(m) for m in (model.mass, model.damping, model.stiffness))
     assert not M[:3, 3:].any() and not K[:3, 3:].any() and not C[:3, 3:].any()  # coupled only by impacts
@@ -82,3 +87,17 @@ def test_refusals():
         jdpim.systems.closing(jdpim.adjacent_buildings(gap=None))
     with pytest.raises(TypeError, match=r"^model must be a jdpim.MDOFOscillator"):
         jdpim.systems.closing(jdpim.VibroImpactOscillator())
+
+
+def test_the_example_scene_file_is_the_free_pair():
+    """examples/adjacent_buildings.toml spells out adjacent_buildings(gap=None) under Kanai-Tajimi ground motion, and
+    its reliability quantity is the closing."""
+    from jdpim.cli._scenefile import load
+
+    sf = load(pathlib.Path(__file__).parents[1] / "examples" / "adjacent_buildings.toml")
+    built = jdpim.kanai_tajimi(jdpim.adjacent_buildings(frequency=(2 * np.pi, 2.5 * np.pi), gap=None))
+    for name in ("mass", "damping", "stiffness", "gains"):
+        np.testing.assert_array_equal(np.asarray(getattr(sf.scene.model, name)), np.asarray(getattr(built, name)))
+    contact = jdpim.kanai_tajimi(jdpim.adjacent_buildings(frequency=(2 * np.pi, 2.5 * np.pi), gap=0.1))
+    state = jax.numpy.arange(1.0, 7.0)
+    assert float(sf.reliability.quantity(state)) == float(jdpim.systems.closing(contact)(state))
