@@ -8,12 +8,14 @@ from . import figures as figures
 from . import filters as filters
 from . import metrics as metrics
 from . import reliability as reliability
+from . import statistics as statistics
 from . import systems as systems
 from ._cpu import use_cpu_cores as use_cpu_cores
 from ._distributions import LogNormal as LogNormal
 from ._distributions import Normal as Normal
 from ._distributions import TruncatedNormal as TruncatedNormal
 from ._distributions import Uniform as Uniform
+from ._envelopes import Jennings as Jennings
 from ._envelopes import ShinozukaSato as ShinozukaSato
 from ._excitation import AbstractExcitation as AbstractExcitation
 from ._excitation import AbstractNodes as AbstractNodes
@@ -44,6 +46,7 @@ from ._tuning import refine_points as refine_points
 from ._tuning import soft_voronoi_probabilities as soft_voronoi_probabilities
 from ._tuning import tune_bandwidth as tune_bandwidth
 from ._warnings import StepSizeWarning as StepSizeWarning
+from .filters import clough_penzien as clough_penzien
 from .filters import first_order_filter as first_order_filter
 from .filters import harmonic as harmonic
 from .filters import kanai_tajimi as kanai_tajimi
@@ -60,9 +63,12 @@ from .methods._paths import NonFiniteWarning as NonFiniteWarning
 from .methods._paths import dpim_points as dpim_points
 from .methods._paths import simulate as simulate
 from .reliability import FirstPassage as FirstPassage
+from .reliability import Fragility as Fragility
+from .reliability import FragilityWarning as FragilityWarning
 from .reliability import ImpactStatistics as ImpactStatistics
 from .reliability import SubsetSimulation as SubsetSimulation
 from .reliability import first_passage as first_passage
+from .reliability import fragility as fragility
 from .reliability import impact_statistics as impact_statistics
 from .results._density import RULES as RULES
 from .results._density import bandwidth as bandwidth
@@ -79,21 +85,16 @@ from .sensitivities._estimators import Pathwise as Pathwise
 from .sensitivities._estimators import SensitivityWarning as SensitivityWarning
 from .sensitivities._sensitivity import Sensitivity as Sensitivity
 from .sensitivities._sensitivity import sensitivity as sensitivity
-from .systems import gear_pair as gear_pair
-from .systems import impact_damper as impact_damper
-from .systems import pounding_frame as pounding_frame
-
-# isort: split
-# quake: non-stationary excitation, exact covariance, response statistics (issue 47)
-from . import statistics as statistics
-from ._envelopes import Jennings as Jennings
-from .filters import clough_penzien as clough_penzien
 from .statistics import ResponseAutocorrelation as ResponseAutocorrelation
 from .statistics import ResponseMoments as ResponseMoments
 from .statistics import ResponseSpectrum as ResponseSpectrum
 from .statistics import response_autocorrelation as response_autocorrelation
 from .statistics import response_moments as response_moments
 from .statistics import response_psd as response_psd
+from .systems import adjacent_buildings as adjacent_buildings
+from .systems import gear_pair as gear_pair
+from .systems import impact_damper as impact_damper
+from .systems import pounding_frame as pounding_frame
 
 try:
     __version__ = _metadata.version("jdpim")
