@@ -80,6 +80,8 @@ def _classes() -> dict[str, type]:
 
     kinds = (
         jdpim.Result, jdpim.GridResult, jdpim.FirstPassage, jdpim.ImpactStatistics, jdpim.Sensitivity,
+        jdpim.ResponseMoments, jdpim.ResponseSpectrum, jdpim.ResponseAutocorrelation, jdpim.Fragility,
+        jdpim.ShinozukaSato, jdpim.Jennings,
         jdpim.Scene, jdpim.VibroImpactOscillator, jdpim.Oscillator, jdpim.MDOFOscillator, jdpim.Barrier,
         jdpim.WhiteNoise, jdpim.SpectralRepresentation, jdpim.GaussianNodes, jdpim.ImpactRule, jdpim.Substeps,
         jdpim.Normal, jdpim.Uniform, jdpim.TruncatedNormal, jdpim.LogNormal, jdpim.PointSet, jdpim.results.Planes,
@@ -89,7 +91,10 @@ def _classes() -> dict[str, type]:
     return {k.__name__: k for k in kinds}
 
 
-RESULTS = ("Result", "GridResult", "FirstPassage", "ImpactStatistics", "Sensitivity")
+RESULTS = (
+    "Result", "GridResult", "FirstPassage", "ImpactStatistics", "Sensitivity",
+    "ResponseMoments", "ResponseSpectrum", "ResponseAutocorrelation", "Fragility",
+)  # fmt: skip
 
 
 class _NotStored(Exception):

@@ -181,6 +181,25 @@ def test_first_passage_and_impact_statistics_round_trip(tmp_path):
     assert_same(round_trip(st, tmp_path / "impacts.npz")[0], st)
 
 
+def test_response_statistics_and_fragility_round_trip(tmp_path):
+    states = np.random.default_rng(0).normal(size=(200, 64, 2))
+    mc = jdpim.Result(
+        times=tuple(0.5 * np.arange(64)), states=states, weights=np.full(200, 1 / 200), method="monte_carlo"
+    )
+    for stat in (
+        jdpim.response_moments(mc, "x"),
+        jdpim.response_psd(mc, "x", segment=16),
+        jdpim.response_autocorrelation(mc, "x", max_lag=4),
+    ):
+        back, _ = round_trip(stat, tmp_path / f"{type(stat).__name__}.npz")
+        assert type(back) is type(stat)
+        assert_same(back, stat)
+    noise = jdpim.WhiteNoise(0.03, envelope=jdpim.Jennings(t1=1.0, t2=3.0, c=0.5))
+    scene = jdpim.Scene(jdpim.VibroImpactOscillator(), noise, t_end=5.0)
+    back, meta = round_trip(mc, tmp_path / "scene.npz", scene=scene)
+    assert meta.scene == scene
+
+
 def test_sensitivity_round_trip(tmp_path, small_sensitivity):
     scene, method, dp = small_sensitivity
     back, meta = round_trip(dp, tmp_path / "dp.npz", scene=scene, method=method)
