@@ -64,6 +64,9 @@ from .reliability import ImpactStatistics as ImpactStatistics
 from .reliability import SubsetSimulation as SubsetSimulation
 from .reliability import first_passage as first_passage
 from .reliability import impact_statistics as impact_statistics
+
+# subset: methods for failure probabilities apart from methods for densities
+from .reliability._failure import AbstractFailureMethod as AbstractFailureMethod
 from .results._density import RULES as RULES
 from .results._density import bandwidth as bandwidth
 from .results._density import histogram as histogram

@@ -16,20 +16,23 @@ Then ``P(Y > b) = p0^i P(Y > b | level i)`` for ``b_i <= b < b_{i+1}``, with the
 ``delta^2 = sum_i (1 - p_i) / (N p_i) (1 + gamma_i)``, ``gamma_i`` from the correlation of the indicators along
 the chains (``gamma_0 = 0``); the standard error is ``P delta``.
 
-Derivatives ``dP/dtheta`` (``first_passage(..., wrt=...)``) come from the samples of level ``i`` itself, which
-follow the law of ``z`` given ``Y > b_i``: ``dP/dtheta = p0^i E[c | Y > b_i]`` with per-sample contributions
+Derivatives ``dP/dtheta`` (``first_passage(..., wrt=...)``) come from the samples of the levels, which follow
+the law of ``z`` given ``Y > b_j``; for ``b`` in level ``i``, ``dP/dtheta = p0^i E[c | Y > b_i]`` with per-sample
+contributions
 
 - drift parameters (where :class:`jdpim.LikelihoodRatio` applies, the default): ``c = 1(Y > b) (S - Sbar)`` with
   ``S`` the Girsanov score of the whole history that Monte Carlo uses, centred by its mean ``Sbar`` over level 0;
 - the noise intensity ``D`` (the default for it): ``c = 1(Y > b) (|z|^2 - n) / (2 D)``, the exact score of the
   forcing ``sqrt(D) z`` (``n = (2 T + 1) m``), of mean zero;
 - any other parameter (restitution, constraints, gains) or ``estimator=jdpim.CentralDifference()``: common random
-  numbers on the level's own samples, ``c = (1(Y(theta + d) > b) - 1(Y(theta - d) > b)) / 2 d``, at the highest
-  level whose threshold lies below ``b`` by more than the largest change ``|Y(theta +- d) - Y(theta)|`` of its
-  samples (so that ``Y(theta +- d) > b`` implies ``Y > b_i``); level 0 (plain Monte Carlo) if none does.
+  numbers on the samples themselves, ``c = (1(Y(theta + d) > b) - 1(Y(theta - d) > b)) / 2 d``, summed over the
+  shells ``b_j < Y <= b_{j + 1}`` of the levels below ``i`` (a path may cross ``b`` at ``theta +- d`` from any shell)
+  and ``Y > b_i`` of level ``i``: ``dP/dtheta = sum_j p0^j E[c 1(shell j) | Y > b_j]``; two more responses per
+  sample of levels ``0 .. i``.
 
-Their coefficient of variation is ``sum_{j < i} delta_j^2 + Var(c) (1 + gamma_c) / (N E[c]^2)``, ``gamma_c`` from
-the correlation of ``c`` along the chains, and for the centred score ``+ (P / dP)^2 Var(S) / N``.
+Each term ``p0^j E[c_j]`` has the variance ``p0^2j Var(c_j) (1 + gamma_c) / N + (p0^j E[c_j])^2 sum_{k < j}
+delta_k^2``, ``gamma_c`` from the correlation of ``c`` along the chains; the terms add (correlation between levels
+left out, as for ``P``), and the centred score adds ``P^2 Var(S) / N``.
 """
 
 from __future__ import annotations
@@ -272,25 +275,25 @@ def _subset_simulation(method: SubsetSimulation, scene: Scene, query, estimators
         d2 = (1.0 - p_b) / (n * p_b) * (1.0 + gamma) if p_b > 0 else np.inf
         prob[j], delta2[j] = factors[m] * p_b, before[m] + d2
         for name, est in estimators.items():
-            extra, i = 0.0, m
+            extra = 0.0
             if isinstance(est, LikelihoodRatio):
                 per_level, k = scores[name]
-                c = np.where(hit, per_level[m][:, k] - mean0[k], 0.0)
+                terms = [(m, np.where(hit, per_level[m][:, k] - mean0[k], 0.0))]
                 extra = prob[j] ** 2 * var0[k] / n  # the error of the centring
             elif est == "noise":
                 dims = levels[m].z[0].size
-                c = np.where(hit, (levels[m].extras[:, -1] - dims) / (2.0 * query.values["D"]), 0.0)
-            else:
+                terms = [(m, np.where(hit, (levels[m].extras[:, -1] - dims) / (2.0 * query.values["D"]), 0.0))]
+            else:  # every shell b_i < Y <= b_{i + 1} below level m, then Y > b_m: a path may cross b from any
                 lo, hi = est.pair(name, query.values[name])
-                for i in range(m, -1, -1):  # the highest level whose threshold lies far enough below b
-                    y, y_lo, y_hi = levels[i].y, rerun(name, i, lo), rerun(name, i, hi)
-                    both = np.isfinite(y) & np.isfinite(y_lo) & np.isfinite(y_hi)
-                    change = np.max(np.abs(np.concatenate([y_lo - y, y_hi - y])[np.tile(both, 2)]), initial=0.0)
-                    if i == 0 or b - levels[i].threshold > change:
-                        break
-                c = ((y_hi > b).astype(float) - (y_lo > b)) / (hi - lo)
-            value[name][j] = factors[i] * np.mean(c)
-            var = factors[i] ** 2 * _variance_of_mean(levels[i], c, n_c) + value[name][j] ** 2 * before[i] + extra
+                terms = []
+                for i in range(m + 1):
+                    c = ((rerun(name, i, hi) > b).astype(float) - (rerun(name, i, lo) > b)) / (hi - lo)
+                    terms.append((i, c if i == m else np.where(levels[i].y <= levels[i + 1].threshold, c, 0.0)))
+            parts = [(factors[i] * float(np.mean(c)), i, c) for i, c in terms]
+            value[name][j] = sum(v for v, _, _ in parts)
+            var = extra + sum(
+                factors[i] ** 2 * _variance_of_mean(levels[i], c, n_c) + v**2 * before[i] for v, i, c in parts
+            )
             stderr[name][j] = np.sqrt(var) if p_b > 0 else np.nan
     evaluations += sum(y.size for y in reruns.values())
     if n_bad:
