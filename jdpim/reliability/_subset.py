@@ -249,7 +249,7 @@ def _subset_simulation(method: SubsetSimulation, scene: Scene, query, estimators
         factors.append(factors[-1] * p0)
         before.append(before[-1] + (1.0 - p0) / (n * p0) * (1.0 + gamma))
     thresholds = np.asarray([level.threshold for level in levels])
-    prob, delta2 = np.full(levels_asked.shape, np.nan), np.full(levels_asked.shape, np.nan)
+    prob, prob_se = np.full(levels_asked.shape, np.nan), np.full(levels_asked.shape, np.nan)
     value = {name: np.zeros(levels_asked.shape) for name in estimators}
     stderr = {name: np.zeros(levels_asked.shape) for name in estimators}
     scores = {}
@@ -272,8 +272,9 @@ def _subset_simulation(method: SubsetSimulation, scene: Scene, query, estimators
         hit = levels[m].y > b
         p_b = float(np.mean(hit))
         gamma = _gamma(hit.reshape(-1, n_c).T, p_b, p_b * (1.0 - p_b)) if levels[m].chained else 0.0
-        d2 = (1.0 - p_b) / (n * p_b) * (1.0 + gamma) if p_b > 0 else np.inf
-        prob[j], delta2[j] = factors[m] * p_b, before[m] + d2
+        prob[j] = factors[m] * p_b
+        if p_b > 0:  # no error estimate from no sample above b
+            prob_se[j] = prob[j] * np.sqrt(before[m] + (1.0 - p_b) / (n * p_b) * (1.0 + gamma))
         for name, est in estimators.items():
             extra = 0.0
             if isinstance(est, LikelihoodRatio):
@@ -306,7 +307,7 @@ def _subset_simulation(method: SubsetSimulation, scene: Scene, query, estimators
     dtype = scene.float_dtype
     t = (scene.save_at[-1],)
     p = jnp.asarray(prob[None], dtype)
-    se = jnp.asarray((prob * np.sqrt(delta2))[None], dtype)
+    se = jnp.asarray(prob_se[None], dtype)
     derivative = derivative_stderr = None
     if estimators:
         derivative = {name: jnp.asarray(v[None], dtype) for name, v in value.items()}
