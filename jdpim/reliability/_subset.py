@@ -233,6 +233,26 @@ def _scores(scene: Scene, settings: dict, extras: np.ndarray, level0: _Level) ->
     return np.stack(out, axis=1)
 
 
+def _terms(est, name: str, b: float, m: int, hit, levels: list, scores: dict, values: dict, rerun) -> tuple:
+    """``([(level j, c (N,)), ...], extra)``: the per-sample contributions to ``dP/d name`` at level ``b``
+    (in level ``m``; ``hit``: its samples above ``b``) whose level means times ``p0^j`` add up to it, and for the
+    likelihood ratio the variance of the score over level 0 (its centring's error), else 0."""
+    if isinstance(est, LikelihoodRatio):
+        per_level, mean0, var0 = scores[name]
+        return [(m, np.where(hit, per_level[m] - mean0, 0.0))], var0
+    if est == "noise":
+        dims = levels[m].z[0].size
+        return [(m, np.where(hit, (levels[m].extras[:, -1] - dims) / (2.0 * values["D"]), 0.0))], 0.0
+    # central differences over every shell b_j < Y <= b_{j + 1} below level m, then Y > b_m: a path may cross b
+    # at theta +- d from any of them
+    lo, hi = est.pair(name, values[name])
+    terms = []
+    for j in range(m + 1):
+        c = ((rerun(name, j, hi) > b).astype(float) - (rerun(name, j, lo) > b)) / (hi - lo)
+        terms.append((j, c if j == m else np.where(levels[j].y <= levels[j + 1].threshold, c, 0.0)))
+    return terms, 0.0
+
+
 def _subset_simulation(method: SubsetSimulation, scene: Scene, query, estimators: dict) -> FirstPassage:
     levels_asked = np.asarray(query.levels, float)
     n, p0 = method.n_per_level, method.p0
@@ -252,13 +272,12 @@ def _subset_simulation(method: SubsetSimulation, scene: Scene, query, estimators
     prob, prob_se = np.full(levels_asked.shape, np.nan), np.full(levels_asked.shape, np.nan)
     value = {name: np.zeros(levels_asked.shape) for name in estimators}
     stderr = {name: np.zeros(levels_asked.shape) for name in estimators}
-    scores = {}
+    scores = {}  # name -> (per level: its scores (N,), their mean and variance over level 0)
     if settings:
         per_level = [_scores(scene, settings, level.extras, levels[0]) for level in levels]
         finite = np.isfinite(levels[0].y)
-        mean0 = np.mean(per_level[0][finite], axis=0)
-        var0 = np.var(per_level[0][finite], axis=0)
-        scores = {name: (per_level, j) for j, name in enumerate(settings)}
+        mean0, var0 = np.mean(per_level[0][finite], axis=0), np.var(per_level[0][finite], axis=0)
+        scores = {name: ([s[:, k] for s in per_level], mean0[k], var0[k]) for k, name in enumerate(settings)}
     reruns = {}  # (name, level, value) -> y
 
     def rerun(name, i, v):
@@ -276,20 +295,9 @@ def _subset_simulation(method: SubsetSimulation, scene: Scene, query, estimators
         if p_b > 0:  # no error estimate from no sample above b
             prob_se[j] = prob[j] * np.sqrt(before[m] + (1.0 - p_b) / (n * p_b) * (1.0 + gamma))
         for name, est in estimators.items():
-            extra = 0.0
+            terms, extra = _terms(est, name, b, m, hit, levels, scores, query.values, rerun)
             if isinstance(est, LikelihoodRatio):
-                per_level, k = scores[name]
-                terms = [(m, np.where(hit, per_level[m][:, k] - mean0[k], 0.0))]
-                extra = prob[j] ** 2 * var0[k] / n  # the error of the centring
-            elif est == "noise":
-                dims = levels[m].z[0].size
-                terms = [(m, np.where(hit, (levels[m].extras[:, -1] - dims) / (2.0 * query.values["D"]), 0.0))]
-            else:  # every shell b_i < Y <= b_{i + 1} below level m, then Y > b_m: a path may cross b from any
-                lo, hi = est.pair(name, query.values[name])
-                terms = []
-                for i in range(m + 1):
-                    c = ((rerun(name, i, hi) > b).astype(float) - (rerun(name, i, lo) > b)) / (hi - lo)
-                    terms.append((i, c if i == m else np.where(levels[i].y <= levels[i + 1].threshold, c, 0.0)))
+                extra = prob[j] ** 2 * extra / n  # the error of the centring by Sbar
             parts = [(factors[i] * float(np.mean(c)), i, c) for i, c in terms]
             value[name][j] = sum(v for v, _, _ in parts)
             var = extra + sum(
