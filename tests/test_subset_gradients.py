@@ -67,7 +67,7 @@ def test_restitution_and_several_degrees_of_freedom():
     fp = jdpim.first_passage(impact, "v", 3.0, method, wrt="r", estimator=jdpim.CentralDifference(step=0.1))
     d, se = _value(fp, "r")
     assert d > 2 * se > 0 and float(fp.probability[0, 0]) < 3e-3, (d, se, fp.probability)
-    fp = jdpim.first_passage(SCENE, absolute, LEVEL, method, wrt="r")
+    fp = jdpim.first_passage(SCENE, absolute, LEVEL, jdpim.SubsetSimulation(n_per_level=100), wrt="r")
     assert _value(fp, "r") == (0.0, 0.0)
     two = jdpim.MDOFOscillator(
         mass=np.eye(2), gains=[[1.0], [0.0]], damping=[[0.4, -0.2], [-0.2, 0.4]], stiffness=[[2.0, -1.0], [-1.0, 2.0]]
