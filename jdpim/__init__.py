@@ -70,6 +70,7 @@ from .reliability import SubsetSimulation as SubsetSimulation
 from .reliability import first_passage as first_passage
 from .reliability import fragility as fragility
 from .reliability import impact_statistics as impact_statistics
+from .reliability._failure import AbstractFailureMethod as AbstractFailureMethod
 from .results._density import RULES as RULES
 from .results._density import bandwidth as bandwidth
 from .results._density import histogram as histogram

@@ -21,6 +21,7 @@ from .._pytree import check_int, concrete, pytree_dataclass, real_array, static_
 from .._scene import Scene, parameter_value, saved_index, static_times
 from ..methods._base import AbstractMethod
 from ..methods._paths import NonFiniteWarning
+from ._failure import AbstractFailureMethod
 
 
 @dataclasses.dataclass(frozen=True)
@@ -203,7 +204,14 @@ def _derivatives(scene: Scene, wrt, estimator) -> tuple:
 
 
 def first_passage(
-    scene: Scene, var, level, method: AbstractMethod, *, wrt=(), estimator=None, replicates: int | None = None
+    scene: Scene,
+    var,
+    level,
+    method: AbstractMethod | AbstractFailureMethod,
+    *,
+    wrt=(),
+    estimator=None,
+    replicates: int | None = None,
 ) -> FirstPassage:
     r"""The probability that ``var`` has exceeded ``level`` at some time in ``[0, t]``, for every saved ``t``.
 
@@ -220,7 +228,9 @@ def first_passage(
         method: ``jdpim.MonteCarlo(...)`` (with standard errors) or ``jdpim.DPIM(...)``: the running maximum
             of ``var`` over the start and the end of every time step of every path; or
             ``jdpim.PathIntegration(...)`` (one degree of freedom): the transient density absorbed where
-            ``var > level`` after every step (``estimate_error=True`` adds ``FirstPassage.grid_error``).
+            ``var > level`` after every step (``estimate_error=True`` adds ``FirstPassage.grid_error``); or
+            ``jdpim.SubsetSimulation(...)`` for small probabilities at the last saved time (its derivatives:
+            ``docs/reliability.md``).
         wrt: parameter names (``jdpim.parameter_names(scene)``) to differentiate ``P`` with respect to.
         estimator: how, for every name of ``wrt``: ``None`` (the default) takes ``jdpim.LikelihoodRatio()`` for
             drift parameters with one noise source (``E[1 (S - Sbar)]`` with the score ``S`` of the whole
@@ -248,7 +258,7 @@ def first_passage(
     """
     if not isinstance(scene, Scene):
         raise TypeError(f"scene must be a jdpim.Scene, got {type(scene).__name__}")
-    if not isinstance(method, AbstractMethod):
+    if not isinstance(method, (AbstractMethod, AbstractFailureMethod)):
         raise TypeError(f"method must be a jdpim method object, e.g. jdpim.MonteCarlo(), got {method!r}")
     query = FirstPassageQuery(
         _quantity(scene, var), _levels(scene, var, level), *_derivatives(scene, wrt, estimator), estimator
