@@ -30,7 +30,7 @@ from . import _integrate
 from ._io import Labelled
 from ._pytree import pytree_dataclass, static_field
 from ._scene import Scene, static_times
-from .methods._paths import SamplingMethod, diverged
+from .methods._paths import SamplingMethod, beyond, diverged
 
 
 class AbstractTracked(_integrate.Tracker):
@@ -42,19 +42,27 @@ class AbstractTracked(_integrate.Tracker):
         return values
 
 
+@dataclasses.dataclass(frozen=True)
 class RunningMaximum(_integrate.RunningMax, AbstractTracked):
     """The largest value of ``quantity(state) -> scalar`` (``state``: ``(2 d,)``) over the start and the end of
-    every step so far, and whether the state has been non-finite: ``(2,)`` (first passage).
+    every step so far, and whether the state has been non-finite or diverged: ``(2,)`` (first passage).
 
-    A path that diverges (``finalise``) keeps the maximum it had at the last saved time before and counts as
-    non-finite from then on, as a density leaves it out: it has passed a level only if it did so before."""
+    With ``bound`` (``(2 d,)`` floats, :func:`jdpim.methods._paths.divergence_bound`), a state beyond it counts as
+    diverged, as densities count it: like a non-finite state it is left out of the maximum, and the path is marked
+    from then on, so that it has passed a level only if it did so before it diverged."""
 
-    def finalise(self, values, diverged):
-        maxima, bad = values[..., 0], values[..., 1]
-        before = jnp.concatenate([jnp.full_like(maxima[:, :1], -jnp.inf), maxima[:, :-1]], axis=1)
-        first = diverged & ~jnp.concatenate([jnp.zeros_like(diverged[:, :1]), diverged[:, :-1]], axis=1)
-        held = jnp.max(jnp.where(first, before, -jnp.inf), axis=1, keepdims=True)  # per path
-        return jnp.stack([jnp.where(diverged, held, maxima), jnp.where(diverged, 1.0, bad).astype(bad.dtype)], -1)
+    bound: tuple | None = None
+
+    def _value(self, q, v):
+        value, bad = super()._value(q, v)
+        if self.bound is None:
+            return value, bad
+        out = beyond(jnp.concatenate([q, v]), self.bound)
+        return jnp.where(out, jnp.nan, value), jnp.maximum(bad, out.astype(bad.dtype))
+
+    def update(self, model, acc, q, v, q_new, v_new, e, h):
+        new = super().update(model, acc, q, v, q_new, v_new, e, h)
+        return new if self.bound is None else jnp.where(acc[1] > 0, acc, new)  # a marked path keeps its maximum
 
 
 class ImpactCounts(_integrate.Impacts, AbstractTracked):

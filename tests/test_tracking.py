@@ -8,8 +8,6 @@ import numpy as np
 import pytest
 
 import jdpim
-from jdpim.methods._paths import diverged
-from jdpim.reliability._passage import FirstPassage
 from jdpim.tracking import AbstractTracked, Function, Integral, RunningMaximum, track
 
 # saved at every step, so that the states show what a statistic sees at the start and the end of every step
@@ -59,18 +57,14 @@ def test_track_refuses_what_it_cannot_run():
         track(SCENE, jdpim.MonteCarlo(n_samples=8), energy)
 
 
-def test_first_passage_counts_a_diverged_path_as_densities_do():
-    """Divergence (beyond 1e6 times ``divergence_scale``, 21.9 in x for the reference scene to t = 20) is the rule
-    densities use: a path that passed the level before it diverged has passed, one that did not is lost (not passed
-    because its blow-up exceeds every level), and paths within the scale are unchanged."""
-    scene = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=20.0, save_at=(5.0, 10.0, 20.0))
-    states = np.zeros((4, 3, 2), np.float32)
-    states[:, :, 0] = [[0.5, 0.7, 0.2], [0.1, 3e7, 2e20], [0.8, 0.1, 3e7], [0.2, 0.3, 0.4]]
-    maxima = np.maximum.accumulate(np.abs(states[..., 0]), axis=1)
-    values = jnp.asarray(np.stack([maxima, np.zeros_like(maxima)], -1))
-    held = RunningMaximum(lambda s: s[0]).finalise(values, diverged(scene, jnp.asarray(states)))
-    fp = FirstPassage.from_tracked(scene.save_at, [0.6], held, jnp.full(4, 0.25), "monte_carlo", stderr=False)
-    # passed 0.6: path 0 from t = 10; path 2 from t = 5, before it diverged at t = 20; path 1 diverged at t = 10
-    np.testing.assert_allclose(np.asarray(fp.probability)[:, 0], [0.25, 0.5, 0.5], rtol=1e-6)
-    np.testing.assert_allclose(np.asarray(fp.lost_mass)[:, 0], [0.0, 0.25, 0.25], rtol=1e-6)
-    np.testing.assert_array_equal(np.asarray(held)[[0, 3]], np.asarray(values)[[0, 3]])
+def test_the_running_maximum_leaves_out_states_beyond_the_divergence_bound():
+    """A state beyond ``bound`` counts as diverged, like a non-finite one: left out of the maximum, and the path
+    marked and its maximum held from then on."""
+    running = RunningMaximum(lambda s: s[0], bound=(10.0, 10.0))
+    zero = (jnp.zeros(1),) * 3
+    acc = running.init(None, jnp.array([0.5]), jnp.array([0.0]), zero)
+    for x, v, expected in [(2.0, 1.0, [2.0, 0.0]), (50.0, 1.0, [2.0, 1.0]), (3.0, 1.0, [2.0, 1.0])]:
+        acc = running.update(None, acc, None, None, jnp.array([x]), jnp.array([v]), zero, 0.01)
+        np.testing.assert_array_equal(np.asarray(acc), expected)
+    free = RunningMaximum(lambda s: s[0])
+    assert free.update(None, acc, None, None, jnp.array([50.0]), jnp.array([1.0]), zero, 0.01)[0] == 50.0

@@ -90,21 +90,34 @@ def divergence_scale(scene: Scene) -> np.ndarray | None:
     return np.concatenate([np.full(n, start["x0"] + v * scene.t_end), np.full(n, v)])
 
 
-def diverged(scene: Scene, states):
-    """``(N, S)`` bool: whether each path of ``states`` ``(N, S, 2 n)`` has diverged by each saved time, that is
-    has been beyond ``DIVERGED`` times :func:`divergence_scale` at this or an earlier saved time (all ``False`` where
-    the scale is traced). Densities leave such states out (:func:`without_diverged`), first passage counts such a
-    path as lost from then on unless it has passed the level before."""
+def divergence_bound(scene: Scene) -> np.ndarray | None:
+    """``(2 n,)``: ``DIVERGED`` times :func:`divergence_scale`, the bound beyond which a state has diverged;
+    ``None`` where the scene's parameters are traced."""
     scale = divergence_scale(scene)
-    if scale is None:
+    return None if scale is None else DIVERGED * scale
+
+
+def beyond(states, bound):
+    """Whether each state (the last axis, ``2 n``) of ``states`` lies beyond ``bound`` ``(2 n,)`` in some coordinate
+    or velocity: a diverged state. Densities leave such states out (:func:`without_diverged`); first passage counts
+    a path as lost from its first such state on, unless it has passed the level before
+    (:class:`jdpim.tracking.RunningMaximum`)."""
+    limit = jnp.asarray(bound, states.dtype).reshape((1,) * (states.ndim - 1) + (-1,))
+    return jnp.any(jnp.abs(states) > limit, axis=-1)
+
+
+def diverged(scene: Scene, states):
+    """``(N, S)``: whether each path of ``states`` ``(N, S, 2 n)`` has been :func:`beyond`
+    :func:`divergence_bound` at this or an earlier saved time (all ``False`` where the bound is traced)."""
+    bound = divergence_bound(scene)
+    if bound is None:
         return jnp.zeros(states.shape[:2], bool)
-    beyond = jnp.any(jnp.abs(states) > jnp.asarray(DIVERGED * scale, states.dtype)[None, None], axis=-1)
-    return jnp.cumsum(beyond, axis=1) > 0
+    return jnp.cumsum(beyond(states, bound), axis=1) > 0
 
 
 def without_diverged(scene: Scene, states):
-    """``states`` ``(N, S, 2 n)`` with those of paths that have diverged (:func:`diverged`) set to NaN, so that
-    they count as non-finite (``Result.n_nonfinite``)."""
+    """``states`` ``(N, S, 2 n)`` with those of paths that have :func:`diverged` set to NaN, so that they count as
+    non-finite (``Result.n_nonfinite``)."""
     return jnp.where(diverged(scene, states)[..., None], jnp.nan, states)
 
 

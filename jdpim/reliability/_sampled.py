@@ -11,7 +11,7 @@ import jax.numpy as jnp
 from .._integrate import Stacked
 from .._scene import Scene, with_parameters
 from ..methods._ad_guard import INDICATOR, watch
-from ..methods._paths import diverged
+from ..methods._paths import divergence_bound
 from ..sensitivities._estimators import Score
 from ..sensitivities._scores import centred_scores
 from ..tracking import RunningMaximum, Sums
@@ -39,15 +39,12 @@ def sampled_first_passage(method, scene: Scene, query) -> FirstPassage:
     settings = {}
     for name in query.wrt:
         settings.update(query.estimators[name].scores_needed(name, scene))
-    running = RunningMaximum(query.quantity)
+    bound = divergence_bound(scene)  # the nominal scene's, for every run: the same rule for common paths
+    running = RunningMaximum(query.quantity, None if bound is None else tuple(float(b) for b in bound))
     track = Stacked((running, Sums(Score(tuple(settings), scene.dt)))) if settings else running
 
     def tracked(scene):
-        """``(N, S, 2 + k)``: the running maxima (a diverged path's held, :meth:`RunningMaximum.finalise`), then
-        the score sums."""
-        states, values = method.paths(scene, rows, chunk, track=track)
-        held = running.finalise(values[..., :2], diverged(scene, states))
-        return jnp.concatenate([held, values[..., 2:]], axis=-1)
+        return method.paths(scene, rows, chunk, track=track)[1]
 
     nominal = watch(tracked(scene), INDICATOR)
     sampled = method.independent  # independent samples: a sampling standard error
