@@ -40,7 +40,8 @@ def _quantity(scene: Scene, var) -> Callable:
     return Coordinate(var, names.index(var))
 
 
-def _levels(scene: Scene, var, level) -> np.ndarray:
+def checked_levels(scene: Scene, var, level) -> np.ndarray:
+    """``level`` as a 1-D array of finite levels above the lower bound of ``var`` (refused in one line otherwise)."""
     levels = np.atleast_1d(real_array("level", level, "a number or a 1-D sequence of numbers"))
     if levels.ndim != 1 or levels.size == 0:
         raise ValueError(f"level must be a number or a non-empty 1-D sequence of numbers, got shape {levels.shape}")
@@ -137,7 +138,7 @@ def first_passage(
     if not isinstance(method, AbstractMethod):
         raise TypeError(f"method must be a jdpim method object, e.g. jdpim.MonteCarlo(), got {method!r}")
     query = FirstPassageQuery(
-        _quantity(scene, var), _levels(scene, var, level), *_derivatives(scene, wrt, estimator), estimator
+        _quantity(scene, var), checked_levels(scene, var, level), *_derivatives(scene, wrt, estimator), estimator
     )
     if replicates is None:
         out = _answer(scene, method, query)
