@@ -129,8 +129,7 @@ def test_a_path_that_passes_before_it_diverges_counts_as_passed():
     p, lost = np.asarray(fp.probability), np.asarray(fp.lost_mass)
     assert 0.3 < p[0, 0] < 0.7
     np.testing.assert_allclose(p[1, 0], p[0, 0], atol=1e-6)  # the passed paths stay passed after they diverge
-    np.testing.assert_allclose(p[:, 0] + lost[:, 0], [1.0, 1.0], atol=2e-2)  # t = 10: 4 of 200 not yet diverged
-    np.testing.assert_allclose(p[1] + lost[1], [1.0, 1.0], atol=1e-5)
+    np.testing.assert_allclose(p[1] + lost[1], [1.0, 1.0], atol=1e-5)  # by t = 60 every path has diverged
     np.testing.assert_array_equal(p[:, 1], [0.0, 0.0])
 
 
