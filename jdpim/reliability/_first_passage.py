@@ -148,9 +148,10 @@ def first_passage(
     lost = concrete(out.lost_mass)
     if lost is not None and lost.any():
         warnings.warn(
-            f"probability up to {float(lost.max()):.3g} is carried by paths whose state turned non-finite before "
-            "they passed a level; it is left out of FirstPassage.probability (FirstPassage.lost_mass). Reduce dt "
-            "or the excitation level, or sub-step stiff steps (Scene(..., substeps=jdpim.Substeps())).",
+            f"probability up to {float(lost.max()):.3g} is carried by paths whose state turned non-finite or "
+            "diverged before they passed a level; it is left out of FirstPassage.probability "
+            "(FirstPassage.lost_mass). Reduce dt or the excitation level, or sub-step stiff steps "
+            "(Scene(..., substeps=jdpim.Substeps())).",
             NonFiniteWarning,
             stacklevel=2,
         )

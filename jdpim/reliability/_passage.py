@@ -49,8 +49,9 @@ class FirstPassage(Labelled):
         stderr: shape ``(S, L)``, the sampling standard error of ``probability`` (Monte Carlo:
             ``sqrt(sum_i w_i^2 (1_i - p)^2)``, i.e. ``sqrt(p (1 - p) / N)`` for ``N`` equal weights), or
             ``None`` where the method has none (DPIM points are not independent samples).
-        lost_mass: shape ``(S, L)``: the probability carried by paths whose state turned non-finite by
-            each saved time before they exceeded the level; they are left out of ``probability``, so the true
+        lost_mass: shape ``(S, L)``: the probability carried by paths whose state turned non-finite or
+            diverged (the densities' rule, :func:`jdpim.methods._paths.beyond`) by each saved time before they
+            exceeded the level; they are left out of ``probability``, so the true
             value lies in ``[probability, probability + lost_mass]`` (a path that exceeded the level first counts
             as passed).
         method: the method's name.
@@ -108,16 +109,16 @@ class FirstPassage(Labelled):
 
     @staticmethod
     def passed(tracked, levels):
-        """``(N, S, L)``: 1 where a path's running maximum (:class:`jdpim._integrate.RunningMax` values
+        """``(N, S, L)``: 1 where a path's running maximum (:class:`jdpim.tracking.RunningMaximum` values
         ``(N, S, 2)``) exceeds a level, else 0."""
         maxima = tracked[..., 0]
         return (maxima[..., None] > jnp.asarray(levels, maxima.dtype)[None, None]).astype(maxima.dtype)
 
     @classmethod
     def from_tracked(cls, times, levels, tracked, weights, method: str, *, stderr: bool) -> FirstPassage:
-        """From :class:`jdpim._integrate.RunningMax` values ``(N, S, 2)`` of ``N`` paths with probabilities
+        """From :class:`jdpim.tracking.RunningMaximum` values ``(N, S, 2)`` of ``N`` paths with probabilities
         ``weights`` ``(N,)``: a path has passed a level once its running maximum exceeds it (also if its state
-        turned non-finite afterwards); a non-finite path that has not is lost."""
+        turned non-finite or diverged afterwards); a non-finite or diverged path that has not is lost."""
         maxima, bad = tracked[..., 0], tracked[..., 1] > 0
         hit = cls.passed(tracked, levels)
         # over the total weight summed the same way: float32 rounding of a sum of many weights (1e-4 at 2e4
