@@ -68,3 +68,30 @@ def test_the_running_maximum_leaves_out_states_beyond_the_divergence_bound():
         np.testing.assert_array_equal(np.asarray(acc), expected)
     free = RunningMaximum(lambda s: s[0])
     assert free.update(None, acc, None, None, jnp.array([50.0]), jnp.array([1.0]), zero, 0.01)[0] == 50.0
+
+
+@dataclasses.dataclass(frozen=True)
+class Position(AbstractTracked):
+    """The coordinates at the saved times, left out (NaN) once a path has diverged, as densities leave it out."""
+
+    def init(self, model, q, v, e):
+        return q
+
+    def update(self, model, acc, q, v, q_new, v_new, e, h):
+        return q_new
+
+    def finalise(self, values, diverged):
+        return jnp.where(diverged[..., None], jnp.nan, values)
+
+
+def test_finalise_sees_the_paths_that_diverged_as_the_densities_do():
+    """``x'' - 4 x = xi`` diverges (beyond 6.6e7 in x by t = 10 on most paths): the statistic's ``finalise`` gets
+    the same paths, at the same saved times, as the result leaves out of its densities."""
+    model = jdpim.MDOFOscillator(mass=[[1.0]], gains=[[1.0]], stiffness=[[-4.0]])
+    scene = jdpim.Scene(model, noise=jdpim.WhiteNoise(D=0.01), t_end=12.0, dt=0.01, save_at=(2.0, 12.0))
+    method = jdpim.MonteCarlo(n_samples=16, seed=0)
+    tracked = np.asarray(track(scene, method, Position()).values)[..., 0]
+    with pytest.warns(jdpim.NonFiniteWarning, match="non-finite or diverged"):
+        states = np.asarray(jdpim.solve(scene, method).states)[..., 0]
+    assert np.isfinite(tracked[:, 0]).all() and np.isnan(tracked[:, 1]).sum() >= 8
+    np.testing.assert_array_equal(tracked, states)
