@@ -25,7 +25,10 @@ class RunningMinimum(AbstractTracked):
         return jnp.minimum(acc, v_new)
 
 
-@pytest.mark.parametrize("method", [jdpim.MonteCarlo(n_samples=64, seed=2), jdpim.DPIM(n_points=64)])
+MC = jdpim.MonteCarlo(n_samples=64, seed=2)  # one set of paths for every test: compiled once
+
+
+@pytest.mark.parametrize("method", [MC, jdpim.DPIM(n_points=64)])
 def test_a_statistic_of_ones_own_runs_through_monte_carlo_and_dpim(method):
     tracked = track(SCENE, method, RunningMinimum())
     states = np.asarray(jdpim.solve(SCENE, method).states)
@@ -41,12 +44,14 @@ def energy(state):
 
 
 def test_built_in_function_and_integral_agree_with_the_saved_states():
-    method = jdpim.MonteCarlo(n_samples=32, seed=5)
+    method = MC
     states = np.asarray(jdpim.solve(SCENE, method).states)
     np.testing.assert_array_equal(np.asarray(track(SCENE, method, Function()).values), states)
     integral = np.asarray(track(SCENE, method, Integral(energy)).values)[..., 0]
     e = energy(np.moveaxis(states, -1, 0))
-    trapezoid = np.concatenate([np.zeros((32, 1)), np.cumsum(0.5 * SCENE.dt * (e[:, 1:] + e[:, :-1]), axis=1)], 1)
+    trapezoid = np.concatenate(
+        [np.zeros((len(states), 1)), np.cumsum(0.5 * SCENE.dt * (e[:, 1:] + e[:, :-1]), axis=1)], 1
+    )
     np.testing.assert_allclose(integral, trapezoid, rtol=1e-5, atol=1e-9)
 
 
