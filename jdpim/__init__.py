@@ -36,7 +36,6 @@ from ._noise import WhiteNoise as WhiteNoise
 from ._points import PointSet as PointSet
 from ._points import gf_discrepancy as gf_discrepancy
 from ._points import select_points as select_points
-from ._replicates import dpim_replicates as dpim_replicates
 from ._replicates import randomised_points as randomised_points
 from ._scene import Scene as Scene
 from ._scene import parameter_names as parameter_names
@@ -54,6 +53,7 @@ from .methods._base import AbstractMethod as AbstractMethod
 from .methods._base import solve as solve
 from .methods._dpim import DPIM as DPIM
 from .methods._dpim import dpim as dpim
+from .methods._dpim import dpim_replicates as dpim_replicates
 from .methods._monte_carlo import MonteCarlo as MonteCarlo
 from .methods._monte_carlo import monte_carlo as monte_carlo
 from .methods._path_integration import PathIntegration as PathIntegration
@@ -96,6 +96,10 @@ from .systems import adjacent_buildings as adjacent_buildings
 from .systems import gear_pair as gear_pair
 from .systems import impact_damper as impact_damper
 from .systems import pounding_frame as pounding_frame
+
+# decouple: statistics tracked along paths (the module jdpim.tracking)
+from .tracking import AbstractTracked as AbstractTracked
+from .tracking import track as track
 
 try:
     __version__ = _metadata.version("jdpim")

@@ -52,7 +52,7 @@ from .._scene import Scene, with_parameters
 from ..methods._paths import NonFiniteWarning, integrate_forcing, without_diverged
 from ..sensitivities._estimators import CentralDifference, LikelihoodRatio, Score
 from ._failure import AbstractFailureMethod
-from ._first_passage import FirstPassage
+from ._passage import FirstPassage
 
 
 @pytree_dataclass
@@ -222,7 +222,7 @@ def _run_levels(method: SubsetSimulation, scene: Scene, response, top: float) ->
 def _scores(scene: Scene, settings: dict, extras: np.ndarray, level0: _Level) -> np.ndarray:
     """``(n, K)``: the whole-history scores of the parameters of ``settings`` (``{name: LikelihoodRatio}``) from
     their sums ``extras``, with the Wong-Zakai fraction measured on level 0's finite samples (as Monte Carlo's
-    ``sensitivities._sensitivity._centred_scores``, uncentred)."""
+    ``jdpim.sensitivities._scores.centred_scores``, uncentred)."""
     D = float(np.reshape(np.asarray(scene.noise.D), ()))
     q = np.mean(level0.extras[np.isfinite(level0.y), 2 * len(settings)]) / scene.n_steps
     frac = 1.0 - q / (2.0 * D * scene.dt)
