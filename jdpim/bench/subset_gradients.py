@@ -41,7 +41,7 @@ def absolute(state):
 
 
 def _row(fp, j: int) -> dict:
-    out = {"P": (float(fp.probability[0, j]), float(fp.stderr[0, j]))}
+    out = {"P": (float(fp.probability[0, j]), float(fp.probability_stderr[0, j]))}
     out["dzeta"] = tuple(2 * W * float(a[0, j]) for a in (fp.derivative["alpha"], fp.derivative_stderr["alpha"]))
     out["dD"] = tuple(float(a[0, j]) for a in (fp.derivative["D"], fp.derivative_stderr["D"]))
     return out

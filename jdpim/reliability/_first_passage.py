@@ -134,7 +134,7 @@ def first_passage(
             without an error estimate.
 
     Returns:
-        :class:`FirstPassage`: ``probability`` and ``stderr`` of shape ``(S, L)``.
+        :class:`FirstPassage`: ``probability`` and ``probability_stderr`` of shape ``(S, L)``.
 
     Examples:
         >>> import jdpim

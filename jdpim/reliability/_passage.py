@@ -46,7 +46,7 @@ class FirstPassage(Labelled):
         levels: the levels, shape ``(L,)``.
         probability: shape ``(S, L)``: the probability that ``q`` has exceeded each level by each saved time,
             counted over the paths (or grid mass) that stayed finite.
-        stderr: shape ``(S, L)``, the sampling standard error of ``probability`` (Monte Carlo:
+        probability_stderr: shape ``(S, L)``, the sampling standard error of ``probability`` (Monte Carlo:
             ``sqrt(sum_i w_i^2 (1_i - p)^2)``, i.e. ``sqrt(p (1 - p) / N)`` for ``N`` equal weights), or
             ``None`` where the method has none (DPIM points are not independent samples).
         lost_mass: shape ``(S, L)``: the probability carried by paths whose state turned non-finite or
@@ -62,17 +62,17 @@ class FirstPassage(Labelled):
             a grid twice as coarse|``, the estimated discretisation error; else ``None``.
         n_evaluations: responses computed (paths integrated) by subset simulation; ``None`` otherwise.
         n_replicates: the number ``R`` of DPIM replicates averaged (``first_passage(..., replicates=R)``): then
-            ``probability`` and ``derivative`` are their means and ``stderr``, ``derivative_stderr`` the standard
-            errors of the means (``std / sqrt(R)``); ``None`` otherwise.
+            ``probability`` and ``derivative`` are their means and ``probability_stderr``, ``derivative_stderr``
+            the standard errors of the means (``std / sqrt(R)``); ``None`` otherwise.
 
-    A pytree (leaves: ``levels``, ``probability``, ``stderr``, ``lost_mass``, the derivatives and
+    A pytree (leaves: ``levels``, ``probability``, ``probability_stderr``, ``lost_mass``, the derivatives and
     ``grid_error``): it passes through ``jax.jit``.
     """
 
     times: tuple = static_field()
     levels: Any = None
     probability: Any = None
-    stderr: Any = None
+    probability_stderr: Any = None
     lost_mass: Any = None
     method: str = static_field(default="monte_carlo")
     derivative: Any = None
@@ -88,7 +88,8 @@ class FirstPassage(Labelled):
         """``(probability, stderr)`` at the saved time ``t`` (``None``: the last), each ``(L,)``;
         ``stderr`` is ``None`` where the method has none."""
         i = len(self.times) - 1 if t is None else saved_index(self.times, t)
-        return self.probability[i], None if self.stderr is None else self.stderr[i]
+        se = self.probability_stderr
+        return self.probability[i], None if se is None else se[i]
 
     @classmethod
     def mean_of(cls, runs: list[FirstPassage]) -> FirstPassage:

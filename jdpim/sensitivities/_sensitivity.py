@@ -77,29 +77,29 @@ class Sensitivity(Persistent, Mapping):
 
     Attributes:
         value: ``{name: array}``, shaped like the PDF, in PDF units per parameter unit.
-        stderr: ``{name: array}`` of the same shapes: the sampling error (NaN for ``Pathwise(mode="reverse")``,
+        value_stderr: ``{name: array}`` of the same shapes: the sampling error (NaN for ``Pathwise(mode="reverse")``,
             which does not estimate it; zero for path integration, which has none).
         estimators: ``{name: estimator}`` actually used (the ``PathIntegration`` settings for path integration).
-        t: the time of the derivative, s (``inf`` for a stationary density).
+        times: ``(t,)``, the time of the derivative, s (``inf`` for a stationary density).
         method: ``"path_integration"``, ``"dpim"`` or ``"monte_carlo"``.
 
-    A pytree (leaves: the arrays of ``value`` and ``stderr``): it passes through ``jax.jit`` and ``jax.vmap``.
+    A pytree (leaves: the arrays of ``value`` and ``value_stderr``): it passes through ``jax.jit`` and ``jax.vmap``.
     """
 
     value: dict
-    stderr: dict
+    value_stderr: dict
     estimators: dict
-    t: float
+    times: tuple
     method: str = "dpim"
 
     def tree_flatten(self):
-        """Leaves: the arrays of ``value`` and ``stderr``; the estimators, ``t`` and ``method`` are structure."""
-        return (self.value, self.stderr), (tuple(self.estimators.items()), self.t, self.method)
+        """Leaves: the arrays of ``value`` and ``value_stderr``; estimators, ``times`` and ``method``: structure."""
+        return (self.value, self.value_stderr), (tuple(self.estimators.items()), self.times, self.method)
 
     @classmethod
     def tree_unflatten(cls, aux, children):
-        estimators, t, method = aux
-        return cls(*children, dict(estimators), t, method)
+        estimators, times, method = aux
+        return cls(*children, dict(estimators), times, method)
 
     def __getitem__(self, name):
         return self.value[name]
@@ -239,8 +239,8 @@ def sensitivity(
 
     Returns:
         :class:`Sensitivity`: ``name -> array`` shaped like the PDF (``(G,)`` or ``(Gx, Gv)``), with
-        ``.value``, ``.stderr``, ``.estimators`` and ``.method``. Path integration has no sampling error:
-        its ``stderr`` is zero and ``estimators`` holds the ``PathIntegration`` settings used (its grid
+        ``.value``, ``.value_stderr``, ``.estimators`` and ``.method``. Path integration has no sampling error:
+        its ``value_stderr`` is zero and ``estimators`` holds the ``PathIntegration`` settings used (its grid
         error, measured in docs/gradients.md, is about 1e-3 relative at the defaults). A
         :class:`SensitivityWarning` flags pathwise results beyond their horizon, exploding or carried by few
         paths, results whose standard error exceeds a quarter of their size, non-finite path-integration
@@ -258,7 +258,7 @@ def sensitivity(
         >>> scene = jdpim.Scene(model, noise=jdpim.WhiteNoise(D=0.05), t_end=2.0, dt=0.02)
         >>> grid = np.linspace(-1.0, 1.0, 9)
         >>> dp = jdpim.sensitivity(scene, ("alpha",), "v", grid, method=jdpim.MonteCarlo(n_samples=2000))
-        >>> dp["alpha"].shape, type(dp.estimators["alpha"]).__name__, bool(np.all(dp.stderr["alpha"] > 0))
+        >>> dp["alpha"].shape, type(dp.estimators["alpha"]).__name__, bool(np.all(dp.value_stderr["alpha"] > 0))
         ((9,), 'Pathwise', True)
     """
     if not isinstance(scene, Scene):
@@ -303,7 +303,7 @@ def sensitivity(
         value, stderr, estimators, method = several_dof_sensitivity(
             scene, wrt, var, grid, t, method, bandwidth, rule, estimator
         )
-        return Sensitivity(value, stderr, estimators, float(t), method.name)
+        return Sensitivity(value, stderr, estimators, (float(t),), method.name)
     values = {name: _nominal(scene, name) for name in wrt}
     query = Query(wrt, values, var, grid, t, bandwidth, rule, estimator)
     if method is None:
@@ -311,7 +311,7 @@ def sensitivity(
     else:
         answer = _answer(scene, method, query)
     value, stderr, estimators = answer
-    return Sensitivity({n: value[n] for n in wrt}, {n: stderr[n] for n in wrt}, estimators, float(t), method.name)
+    return Sensitivity({n: value[n] for n in wrt}, {n: stderr[n] for n in wrt}, estimators, (float(t),), method.name)
 
 
 def _default_method(scene: Scene, query: Query):
