@@ -3,23 +3,13 @@
 Compilation dominates the cost of the suite on a 2-core CPU, so expensive results are session-scoped
 fixtures reused by many tests, and sizes are small. Heavier settings carry the ``slow`` marker.
 
-Two settings apply to the test processes only (the library leaves both to the user):
-
-- XLA:CPU compiles with its older fusion emitters (``--xla_cpu_use_fusion_emitters=false``), which
-  compile the suite's programs in a little over half the time; the code they emit runs slower, which
-  a suite of small sizes does not notice. Processes the suite starts (notebooks, command lines,
-  several processes) inherit the flag. ``JDPIM_TEST_XLA_DEFAULTS=1`` runs the suite with XLA's
-  defaults, as users run the library; so does a JAX whose XLA does not know the flag, and an
-  ``XLA_FLAGS`` that sets the emitters itself is left as it is.
-- Python's cyclic garbage collector runs less often: tracing creates many short-lived objects.
+Python's cyclic garbage collector runs less often in the test processes: tracing creates many short-lived
+objects. XLA compiles with its defaults, as users run the library.
 """
 
 import concurrent.futures
 import gc
 import multiprocessing
-import os
-import subprocess
-import sys
 
 import jax
 import numpy as np
@@ -27,26 +17,6 @@ import pytest
 
 import jdpim
 
-_FAST_COMPILE_FLAG = "--xla_cpu_use_fusion_emitters=false"
-
-
-def _use_fast_compile_flag():
-    """Append the flag to ``XLA_FLAGS`` where this JAX's XLA accepts it (an unknown flag aborts XLA)."""
-    given = os.environ.get("XLA_FLAGS", "")
-    if os.environ.get("JDPIM_TEST_XLA_DEFAULTS") == "1" or "xla_cpu_use_fusion_emitters" in given:
-        return
-    flags = f"{given} {_FAST_COMPILE_FLAG}".strip()
-    probe = subprocess.run(
-        [sys.executable, "-c", "import jax.numpy as jnp; jnp.zeros(1).block_until_ready()"],
-        env=dict(os.environ, XLA_FLAGS=flags, JAX_PLATFORMS="cpu"),
-        capture_output=True,
-        timeout=300,
-    )
-    if probe.returncode == 0:
-        os.environ["XLA_FLAGS"] = flags
-
-
-_use_fast_compile_flag()  # before the first computation starts JAX's CPU backend
 gc.set_threshold(50_000, 20, 100)
 jax.config.update("jax_numpy_rank_promotion", "raise")
 
