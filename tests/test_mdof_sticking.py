@@ -182,8 +182,11 @@ def test_reverse_mode_from_rest_on_a_wall_is_finite_and_equals_forward_mode():
         s = scene.replace(model=model.replace(stiffness=jnp.asarray(model.stiffness).at[0, 0].set(k)))
         return jdpim.solve(s, jdpim.MonteCarlo(n_samples=7, seed=31)).moment("x1", 2, 0.02)
 
+    @jax.jit
+    def both(k):  # reverse mode and forward mode in one program (one compilation)
+        return jax.grad(second_moment)(k), jax.jvp(second_moment, (k,), (jnp.ones_like(k),))[1]
+
     with pytest.warns(jdpim.SensitivityWarning):
-        reverse = float(jax.grad(second_moment)(k0))
-        forward = float(jax.jvp(second_moment, (k0,), (1.0,))[1])
+        reverse, forward = (float(d) for d in both(k0))
     assert np.isfinite(reverse)
     np.testing.assert_allclose(reverse, forward, rtol=1e-4)
