@@ -80,6 +80,9 @@ def _classes() -> dict[str, type]:
 
     kinds = (
         jdpim.Result, jdpim.GridResult, jdpim.FirstPassage, jdpim.ImpactStatistics, jdpim.Sensitivity,
+        jdpim.ResponseMoments, jdpim.ResponseSpectrum, jdpim.ResponseAutocorrelation, jdpim.Fragility,
+        jdpim.tracking.Tracked,
+        jdpim.ShinozukaSato, jdpim.Jennings,
         jdpim.Scene, jdpim.VibroImpactOscillator, jdpim.Oscillator, jdpim.MDOFOscillator, jdpim.Barrier,
         jdpim.WhiteNoise, jdpim.SpectralRepresentation, jdpim.GaussianNodes, jdpim.ImpactRule, jdpim.Substeps,
         jdpim.Normal, jdpim.Uniform, jdpim.TruncatedNormal, jdpim.LogNormal, jdpim.PointSet, jdpim.results.Planes,
@@ -89,7 +92,10 @@ def _classes() -> dict[str, type]:
     return {k.__name__: k for k in kinds}
 
 
-RESULTS = ("Result", "GridResult", "FirstPassage", "ImpactStatistics", "Sensitivity")
+RESULTS = (
+    "Result", "GridResult", "FirstPassage", "ImpactStatistics", "Sensitivity",
+    "ResponseMoments", "ResponseSpectrum", "ResponseAutocorrelation", "Fragility", "Tracked",
+)  # fmt: skip
 
 
 class _NotStored(Exception):
@@ -323,7 +329,7 @@ def to_xarray(obj):
         attrs |= {k: int(getattr(obj, k)) for k in ("order", "folded", "stationary", "has_barrier")}
     elif kind == "FirstPassage":
         tl = ("time", "level")
-        data = {k: (tl, getattr(obj, k)) for k in ("probability", "stderr", "lost_mass", "grid_error")}
+        data = {k: (tl, getattr(obj, k)) for k in ("probability", "probability_stderr", "lost_mass", "grid_error")}
         for key in ("derivative", "derivative_stderr"):
             data |= {f"{key}_{n}": (tl, d) for n, d in (getattr(obj, key) or {}).items()}
         coords = {"time": times, "level": np.asarray(obj.levels)}
@@ -336,6 +342,10 @@ def to_xarray(obj):
             edges = np.asarray(obj.speed_edges)
             data |= {"speed_density": (("time", "speed"), obj.speed_density), "speed_edges": ("edge", edges)}
             coords |= {"speed": 0.5 * (edges[1:] + edges[:-1])}
+    elif kind == "Tracked":
+        data = {"values": (("path", "time", "component"), obj.values), "weights": ("path", obj.weights)}
+        data |= {k: (("time", "component"), getattr(obj, k)) for k in ("mean", "mean_stderr")}
+        coords = {"time": times}
     else:
         raise TypeError(f"to_xarray takes a jdpim result, got {kind}")
     data = {k: (dims, np.asarray(v)) for k, (dims, v) in data.items() if v is not None}

@@ -208,7 +208,8 @@ def test_one_point_and_scalar_grids():
     )
     assert res.joint_pdf(("x", "v"), (0.5, np.array([0.1, 0.5])), 1.0).shape == (2,)
     with pytest.raises(ValueError, match="pdf_error of a sampling result needs independent samples"):
-        jdpim.Result(times=res.times, states=res.states, weights=w, barrier=0.0, method="dpim").pdf_error("x", 0.5, 1.0)
+        dpim = jdpim.Result(times=res.times, states=res.states, weights=w, barrier=0.0, method="dpim")
+        dpim.pdf_error("x", 0.5, 1.0)
 
 
 def test_no_stray_public_names():

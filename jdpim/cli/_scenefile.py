@@ -526,7 +526,7 @@ def _reliability(r: _Reader, scene, derived: tuple[Linear, ...] = ()) -> Reliabi
     """``[reliability]`` of ``scene``: a coordinate of its model, a quantity of ``derived`` or ``"|q|"`` of either,
     and levels above the coordinate's barrier (the library's check, ``jdpim.first_passage``'s message under the
     key) or, for a magnitude, above 0."""
-    from jdpim.reliability._first_passage import _levels
+    from jdpim.reliability._first_passage import checked_levels
 
     coords, named = scene.model.coordinates, {q.name: q for q in derived}
     text = r.table.get("quantity")
@@ -556,7 +556,7 @@ def _reliability(r: _Reader, scene, derived: tuple[Linear, ...] = ()) -> Reliabi
         return Reliability(Magnitude(name, named[name]) if two_sided else named[name], levels)
     if not two_sided:
         try:
-            _levels(scene, name, levels)
+            checked_levels(scene, name, levels)
         except ValueError as err:
             r.fail("levels", str(err).splitlines()[0])
     return Reliability(Magnitude(name, coords.index(name)) if two_sided else name, levels)

@@ -43,9 +43,10 @@ def first_passage(sf: SceneFile, *, progress: bool = True, log=print) -> tuple[d
         wall[m.name] = round(wall_s, 3)
         key = f"first_passage_{m.name}"
         arrays[f"{key}_probability"], arrays[f"{key}_lost_mass"] = np.asarray(fp.probability), np.asarray(fp.lost_mass)
-        if fp.stderr is not None:
-            arrays[f"{key}_stderr"] = np.asarray(fp.stderr)
-        table = report.probability_table(scene.save_at, rel.levels, fp.probability, fp.stderr, str(rel.quantity))
+        if fp.probability_stderr is not None:
+            arrays[f"{key}_stderr"] = np.asarray(fp.probability_stderr)
+        se = fp.probability_stderr
+        table = report.probability_table(scene.save_at, rel.levels, fp.probability, se, str(rel.quantity))
         tables.append(f"{report.NAME[m.name]} ({m.n_paths} paths): {title}\n\n{table}")
     return arrays, "\n\n".join(tables), wall
 

@@ -14,9 +14,10 @@ from .._scene import Scene
 class AbstractMethod(abc.ABC):
     """A way to compute response densities of a :class:`jdpim.Scene`: DPIM, Monte Carlo or path integration.
 
-    Subclasses are frozen dataclasses of numerical settings. ``run(scene)`` computes the result;
-    ``sensitivity(scene, query)`` the derivatives of its densities (called by ``jdpim.sensitivity``);
-    ``first_passage(scene, query)`` first-passage probabilities (called by ``jdpim.first_passage``).
+    Subclasses are frozen dataclasses of numerical settings. ``run(scene)`` computes the result. A method knows
+    no question: questions (``jdpim.first_passage``, ``jdpim.sensitivity``, ``jdpim.impact_statistics``) ask it
+    for its primitives, a sampling method's inputs and paths (``SamplingMethod.inputs``, ``SamplingMethod.paths``)
+    or path integration's step operator.
     """
 
     name: str  # the name results carry in ``Result.method``
@@ -24,16 +25,6 @@ class AbstractMethod(abc.ABC):
     @abc.abstractmethod
     def run(self, scene: Scene):
         """The result of this method on ``scene`` (after the checks of :func:`solve`)."""
-
-    @abc.abstractmethod
-    def sensitivity(self, scene: Scene, query):
-        """``(value, stderr, estimators)`` of ``jdpim.sensitivity`` (``query``: its checked arguments)."""
-
-    def first_passage(self, scene: Scene, query):
-        """The ``jdpim.FirstPassage`` of ``jdpim.first_passage`` (``query``: its checked arguments)."""
-        raise ValueError(
-            f"{type(self).__name__} does not compute first-passage probabilities; use jdpim.MonteCarlo or jdpim.DPIM"
-        )
 
     def replicate(self, scene: Scene, k: int) -> AbstractMethod:
         """The ``k``-th of a set of independent, identically distributed randomisations of this method on

@@ -91,15 +91,35 @@ def divergence_scale(scene: Scene) -> np.ndarray | None:
     return np.concatenate([np.full(n, start["x0"] + v * scene.t_end), np.full(n, v)])
 
 
-def without_diverged(scene: Scene, states):
-    """``states`` ``(N, S, 2 n)`` with those of paths beyond ``DIVERGED`` times :func:`divergence_scale` set to NaN
-    (from the first saved time beyond it on), so that they count as non-finite (``Result.n_nonfinite``)."""
+def divergence_bound(scene: Scene) -> np.ndarray | None:
+    """``(2 n,)``: ``DIVERGED`` times :func:`divergence_scale`, the bound beyond which a state has diverged;
+    ``None`` where the scene's parameters are traced."""
     scale = divergence_scale(scene)
-    if scale is None:
-        return states
-    beyond = jnp.any(jnp.abs(states) > jnp.asarray(DIVERGED * scale, states.dtype)[None, None], axis=-1)
-    beyond = jnp.cumsum(beyond, axis=1) > 0
-    return jnp.where(beyond[..., None], jnp.nan, states)
+    return None if scale is None else DIVERGED * scale
+
+
+def beyond(states, bound):
+    """Whether each state (the last axis, ``2 n``) of ``states`` lies beyond ``bound`` ``(2 n,)`` in some coordinate
+    or velocity: a diverged state. Densities leave such states out (:func:`without_diverged`); first passage counts
+    a path as lost from its first such state on, unless it has passed the level before
+    (:class:`jdpim.tracking.RunningMaximum`)."""
+    limit = jnp.asarray(bound, states.dtype).reshape((1,) * (states.ndim - 1) + (-1,))
+    return jnp.any(jnp.abs(states) > limit, axis=-1)
+
+
+def diverged(scene: Scene, states):
+    """``(N, S)``: whether each path of ``states`` ``(N, S, 2 n)`` has been :func:`beyond`
+    :func:`divergence_bound` at this or an earlier saved time (all ``False`` where the bound is traced)."""
+    bound = divergence_bound(scene)
+    if bound is None:
+        return jnp.zeros(states.shape[:2], bool)
+    return jnp.cumsum(beyond(states, bound), axis=1) > 0
+
+
+def without_diverged(scene: Scene, states):
+    """``states`` ``(N, S, 2 n)`` with those of paths that have :func:`diverged` set to NaN, so that they count as
+    non-finite (``Result.n_nonfinite``)."""
+    return jnp.where(diverged(scene, states)[..., None], jnp.nan, states)
 
 
 def _largest_chunk(scene: Scene, kind: str) -> int:
@@ -274,7 +294,7 @@ def simulate(scene: Scene, rows, *, kind: str, chunk_size: int, track=None):
 _jitted_simulate = jax.jit(_simulate, static_argnames=("kind", "chunk_size", "track"))
 
 
-def _is_traced(tree) -> bool:
+def is_traced(tree) -> bool:
     return any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(tree))
 
 
@@ -375,7 +395,7 @@ def run_paths(
     differentiating paths that start at rest on the barrier then warns (``SensitivityWarning``: pathwise
     derivatives through that grazing impact are biased).
     """
-    if _is_traced((scene, rows)):
+    if is_traced((scene, rows)):
         run = functools.partial(simulate, kind=kind, chunk_size=chunk_size, track=track)
         return run(guard(scene), rows) if track is not None else probed(run, guard(scene), rows)
     local = functools.partial(
@@ -516,14 +536,19 @@ class SamplingMethod(AbstractMethod):
     """A method that integrates weighted paths (DPIM points or Monte Carlo samples) in the shared core.
 
     Subclasses give ``inputs(scene) -> (rows, weights, chunk_size)``, the fields ``chunk_size``, ``devices`` and
-    ``progress``, and the class attributes ``name`` and ``default_excitation`` (the forcing it integrates a scene
-    with where the scene names none, ``Scene(excitation=None)``).
+    ``progress``, and the class attributes ``name``, ``default_excitation`` (the forcing it integrates a scene
+    with where the scene names none, ``Scene(excitation=None)``) and ``independent`` (whether its paths are
+    independent samples, so that its estimates have sampling standard errors).
+
+    Questions on paths (first passage, impact statistics, sensitivities, :func:`jdpim.tracking.track`) ask a
+    sampling method for its ``inputs`` and run them with :meth:`paths`, tracking what they need along the steps.
     """
 
     chunk_size: int | None
     devices: tuple | None
     progress: bool | None
     default_excitation: ClassVar[AbstractExcitation]
+    independent: ClassVar[bool]  # its paths are independent samples: its estimates have sampling standard errors
     _registry: ClassVar[dict] = {}
 
     def __init_subclass__(cls, **kwargs):
@@ -551,15 +576,20 @@ class SamplingMethod(AbstractMethod):
         states = run_paths(scene, rows, kind=self.name, chunk_size=chunk, devices=self.devices, progress=self.progress)
         return _finish(scene, states, weights, self.name)
 
-    def sensitivity(self, scene: Scene, query):
-        from ..sensitivities._sensitivity import sampled_sensitivity  # the estimators build on this core
-
-        return sampled_sensitivity(scene, self, query)
-
-    def first_passage(self, scene: Scene, query):
-        from ..reliability._sampled import sampled_first_passage  # failure probabilities build on this core
-
-        return sampled_first_passage(self, scene, query)
+    def paths(self, scene: Scene, rows, chunk_size: int, track=None):
+        """The saved states ``(N, S, 2 d)`` of the input ``rows`` (from :meth:`inputs`), integrated in chunks of
+        ``chunk_size`` paths on this method's devices (:func:`run_paths`); with ``track`` (a
+        :class:`jdpim.tracking.AbstractTracked`) the pair ``(states, values)``, the values ``(N, S, k)`` tracked
+        along every step at the saved times. The primitive every question on paths asks for."""
+        return run_paths(
+            scene,
+            rows,
+            kind=self.name,
+            chunk_size=chunk_size,
+            devices=self.devices,
+            progress=self.progress,
+            track=track,
+        )
 
 
 def check_run_settings(method) -> None:

@@ -10,7 +10,7 @@ import numpy as np
 
 from .._pytree import check_grid, check_points, check_real, concrete, plain, pytree_dataclass, static_field
 from .._scene import static_times
-from .._tangents import watch, watch_forward
+from .._tangents import PROJECTIONS, projections, watch, watch_forward
 from . import _density
 from ._base import COORDINATES, AbstractResult
 
@@ -330,9 +330,11 @@ class Result(AbstractResult):
             if np.ndim(bandwidth) != 1 or len(bandwidth) != 2:
                 raise ValueError(f"bandwidth must be None or a pair (sigma_1, sigma_2), got {plain(bandwidth)!r}")
             sa, sb = (self._sigma(s, None) for s in bandwidth)
+        ga, gb = jnp.asarray(ga), jnp.asarray(gb)
+        a, b = watch_forward((a, b), jax.tree_util.Partial(_joint_contributions, w, (ga, gb), (sa, sb), (lim_a, lim_b)))
         if _unbounded(lim_a) and not _unbounded(lim_b):  # the bounded quantity goes first
-            return _density.kde_2d(b, a, w, jnp.asarray(gb), jnp.asarray(ga), sb, sa, x_bounds=lim_b).T
-        return _density.kde_2d(a, b, w, jnp.asarray(ga), jnp.asarray(gb), sa, sb, x_bounds=lim_a, v_bounds=lim_b)
+            return _density.kde_2d(b, a, w, gb, ga, sb, sa, x_bounds=lim_b).T
+        return _density.kde_2d(a, b, w, ga, gb, sa, sb, x_bounds=lim_a, v_bounds=lim_b)
 
     def histogram(self, var, edges, t: float | None = None):
         """Weighted histogram density of ``var`` at time ``t`` on bin ``edges``; shape ``(len(edges) - 1,)``."""
@@ -362,6 +364,26 @@ def _kernel_contributions(weights, grid, sigma, lim, y, y_dot):
     y = jnp.where(ok, y, 0.0)
     dk = jax.jvp(lambda s: _density._kernel_matrix(jnp.atleast_1d(grid), s, sigma, *lim), (y,), (y_dot,))[1]
     return jnp.where(ok[:, None], (weights[None, :] * dk).T, 0.0)
+
+
+def _joint_contributions(weights, grids, sigmas, lims, y, y_dot):
+    """Per-path contributions to the forward-mode derivative of :meth:`Result.joint_pdf`: ``(N, Ga Gb)``, or
+    their ``(N, PROJECTIONS)`` projections (``jdpim._tangents.projections``) on more than ``PROJECTIONS`` nodes,
+    formed without the ``(N, Ga, Gb)`` array."""
+    ok = jnp.isfinite(y[0]) & jnp.isfinite(y[1])
+
+    def kernel(i):  # (G_i, N) kernel matrix of quantity i and its tangent
+        g, h, lim = jnp.atleast_1d(grids[i]), sigmas[i], lims[i]
+        return jax.jvp(lambda s: _density._kernel_matrix(g, s, h, *lim), (jnp.where(ok, y[i], 0.0),), (y_dot[i],))
+
+    (ka, dka), (kb, dkb) = kernel(0), kernel(1)
+    ga, gb = ka.shape[0], kb.shape[0]
+    if ga * gb <= PROJECTIONS:
+        c = (jnp.einsum("an,bn->nab", dka, kb) + jnp.einsum("an,bn->nab", ka, dkb)).reshape(-1, ga * gb)
+    else:
+        r = jnp.asarray(projections(ga * gb).reshape(ga, gb, PROJECTIONS), ka.dtype)
+        c = jnp.einsum("an,abk,bn->nk", dka, r, kb) + jnp.einsum("an,abk,bn->nk", ka, r, dkb)
+    return jnp.where(ok[:, None], weights[:, None] * c, 0.0)
 
 
 def _moment_contributions(weights, order, y, y_dot):
