@@ -1,15 +1,16 @@
 """jdpim: response PDFs of randomly excited vibro-impact oscillators by the Direct Probability
 Integral Method (DPIM), with Monte Carlo simulation and exact solutions beside it, in JAX."""
 
-import importlib.metadata as _metadata
-
+from . import _io
 from . import exact as exact
 from . import figures as figures
 from . import filters as filters
 from . import metrics as metrics
 from . import reliability as reliability
+from . import results as results
 from . import statistics as statistics
 from . import systems as systems
+from . import tracking as tracking
 from ._cpu import use_cpu_cores as use_cpu_cores
 from ._distributions import LogNormal as LogNormal
 from ._distributions import Normal as Normal
@@ -44,6 +45,7 @@ from ._tuning import loo_log_likelihood as loo_log_likelihood
 from ._tuning import refine_points as refine_points
 from ._tuning import soft_voronoi_probabilities as soft_voronoi_probabilities
 from ._tuning import tune_bandwidth as tune_bandwidth
+from ._version import __version__ as __version__
 from ._warnings import StepSizeWarning as StepSizeWarning
 from .filters import clough_penzien as clough_penzien
 from .filters import first_order_filter as first_order_filter
@@ -71,6 +73,7 @@ from .reliability import first_passage as first_passage
 from .reliability import fragility as fragility
 from .reliability import impact_statistics as impact_statistics
 from .reliability._failure import AbstractFailureMethod as AbstractFailureMethod
+from .results import Planes
 from .results._density import RULES as RULES
 from .results._density import bandwidth as bandwidth
 from .results._density import histogram as histogram
@@ -96,12 +99,17 @@ from .systems import adjacent_buildings as adjacent_buildings
 from .systems import gear_pair as gear_pair
 from .systems import impact_damper as impact_damper
 from .systems import pounding_frame as pounding_frame
-
-# decouple: statistics tracked along paths (the module jdpim.tracking)
 from .tracking import AbstractTracked as AbstractTracked
+from .tracking import Tracked as Tracked
 from .tracking import track as track
 
-try:
-    __version__ = _metadata.version("jdpim")
-except _metadata.PackageNotFoundError:  # running from a source tree without installation
-    __version__ = "0.0.0"
+_io.allow(
+    Result, GridResult, FirstPassage, ImpactStatistics, Sensitivity,
+    ResponseMoments, ResponseSpectrum, ResponseAutocorrelation, Fragility, Tracked,
+    ShinozukaSato, Jennings,
+    Scene, VibroImpactOscillator, Oscillator, MDOFOscillator, Barrier,
+    WhiteNoise, SpectralRepresentation, GaussianNodes, ImpactRule, Substeps,
+    Normal, Uniform, TruncatedNormal, LogNormal, PointSet, Planes,
+    DPIM, MonteCarlo, PathIntegration, SubsetSimulation,
+    Pathwise, LikelihoodRatio, NoiseScaling, CentralDifference,
+)  # fmt: skip
