@@ -376,7 +376,14 @@ def _pathwise(scene, names, estimators, query: Query, method, rows, weights, chu
     horizon = min(estimators[n].horizon for n in names)
 
     def result(states):
-        return Result(times=scene.save_at, states=states, weights=weights, barrier=barrier, method=method.name)
+        return Result(
+            times=scene.save_at,
+            states=states,
+            weights=weights,
+            barrier=barrier,
+            method=method.name,
+            independent=method.independent,
+        )
 
     def paths(vals):
         s = method.paths(with_parameters(scene, vals), rows, chunk)
