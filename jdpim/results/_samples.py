@@ -366,7 +366,7 @@ def _kernel_contributions(weights, grid, sigma, lim, y, y_dot):
     """Per-path contributions ``(N, G)`` to the forward-mode derivative of :meth:`Result.pdf`."""
     ok = jnp.isfinite(y)
     y = jnp.where(ok, y, 0.0)
-    dk = jax.jvp(lambda s: _density._kernel_matrix(jnp.atleast_1d(grid), s, sigma, *lim), (y,), (y_dot,))[1]
+    dk = jax.jvp(lambda s: _density.kernel_matrix(jnp.atleast_1d(grid), s, sigma, *lim), (y,), (y_dot,))[1]
     return jnp.where(ok[:, None], (weights[None, :] * dk).T, 0.0)
 
 
@@ -378,7 +378,7 @@ def _joint_contributions(weights, grids, sigmas, lims, y, y_dot):
 
     def kernel(i):  # (G_i, N) kernel matrix of quantity i and its tangent
         g, h, lim = jnp.atleast_1d(grids[i]), sigmas[i], lims[i]
-        return jax.jvp(lambda s: _density._kernel_matrix(g, s, h, *lim), (jnp.where(ok, y[i], 0.0),), (y_dot[i],))
+        return jax.jvp(lambda s: _density.kernel_matrix(g, s, h, *lim), (jnp.where(ok, y[i], 0.0),), (y_dot[i],))
 
     (ka, dka), (kb, dkb) = kernel(0), kernel(1)
     ga, gb = ka.shape[0], kb.shape[0]
