@@ -101,6 +101,11 @@ from .systems import pounding_frame as pounding_frame
 from .tracking import AbstractTracked as AbstractTracked
 from .tracking import track as track
 
+# closeout: the distribution of the peak over the record (from first passage)
+# isort: split
+from .reliability import PeakDistribution as PeakDistribution
+from .reliability import peak_distribution as peak_distribution
+
 try:
     __version__ = _metadata.version("jdpim")
 except _metadata.PackageNotFoundError:  # running from a source tree without installation

@@ -81,7 +81,7 @@ def _classes() -> dict[str, type]:
     kinds = (
         jdpim.Result, jdpim.GridResult, jdpim.FirstPassage, jdpim.ImpactStatistics, jdpim.Sensitivity,
         jdpim.ResponseMoments, jdpim.ResponseSpectrum, jdpim.ResponseAutocorrelation, jdpim.Fragility,
-        jdpim.tracking.Tracked,
+        jdpim.tracking.Tracked, jdpim.PeakDistribution,
         jdpim.ShinozukaSato, jdpim.Jennings,
         jdpim.Scene, jdpim.VibroImpactOscillator, jdpim.Oscillator, jdpim.MDOFOscillator, jdpim.Barrier,
         jdpim.WhiteNoise, jdpim.SpectralRepresentation, jdpim.GaussianNodes, jdpim.ImpactRule, jdpim.Substeps,
@@ -94,7 +94,7 @@ def _classes() -> dict[str, type]:
 
 RESULTS = (
     "Result", "GridResult", "FirstPassage", "ImpactStatistics", "Sensitivity",
-    "ResponseMoments", "ResponseSpectrum", "ResponseAutocorrelation", "Fragility", "Tracked",
+    "ResponseMoments", "ResponseSpectrum", "ResponseAutocorrelation", "Fragility", "Tracked", "PeakDistribution",
 )  # fmt: skip
 
 

@@ -109,7 +109,7 @@ def test_an_absent_term_is_not_in_the_model(tmp_path, spelling):
         (
             {"kind": '"duffing"'},
             "s.toml: [model] kind: must be one of ['vibro_impact', 'mdof', 'impact_damper', 'pounding_frame', "
-            "'gear_pair'], got 'duffing'",
+            "'gear_pair', 'adjacent_buildings'], got 'duffing'",
         ),
         ({"D": "true"}, "s.toml: [noise] D: must be a number, got a boolean True"),
         ({"n_points": "1.5"}, "s.toml: [method] n_points: must be an integer, got a float 1.5"),
