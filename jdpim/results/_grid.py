@@ -10,6 +10,7 @@ import numpy as np
 
 from .._pytree import check_int, check_points, check_real, plain, pytree_dataclass, static_field
 from .._scene import static_times
+from .._stencils import catmull_rom, lagrange
 from . import _density
 from ._base import COORDINATES, AbstractResult
 from ._samples import _pair
@@ -125,8 +126,6 @@ class GridResult(AbstractResult):
 
     def _interpolate(self, values, var: str, points):
         """``values`` on the nodes of ``var`` (first axis) at ``points`` with the solver's interpolation."""
-        from ..methods._pi_operator import catmull_rom, lagrange  # the solver's own functions (methods import results)
-
         nodes, _ = self._axis(var)
         g = jnp.atleast_1d(jnp.asarray(points, dtype=values.dtype))
         t = (g - nodes[0]) / (nodes[1] - nodes[0])
