@@ -137,8 +137,8 @@ def test_a_derived_quantity_or_its_magnitude_is_a_reliability_quantity(tmp_path)
         ),
         (
             'kind = "impact_damper"\n[[model.filters]]\nkind = "white"',
-            "s.toml: [model] filters[0].kind: must be one of ['kanai_tajimi', 'clough_penzien', 'first_order', 'harmonic'], "
-            "got 'white'",
+            "s.toml: [model] filters[0].kind: must be one of ['kanai_tajimi', 'clough_penzien', 'first_order', "
+            "'harmonic'], got 'white'",
         ),
         (
             'kind = "impact_damper"\n[[model.filters]]\nkind = "first_order"\na = 0.0',
