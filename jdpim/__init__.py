@@ -68,10 +68,12 @@ from .reliability import FirstPassage as FirstPassage
 from .reliability import Fragility as Fragility
 from .reliability import FragilityWarning as FragilityWarning
 from .reliability import ImpactStatistics as ImpactStatistics
+from .reliability import PeakDistribution as PeakDistribution
 from .reliability import SubsetSimulation as SubsetSimulation
 from .reliability import first_passage as first_passage
 from .reliability import fragility as fragility
 from .reliability import impact_statistics as impact_statistics
+from .reliability import peak_distribution as peak_distribution
 from .reliability._failure import AbstractFailureMethod as AbstractFailureMethod
 from .results import Planes
 from .results._density import RULES as RULES
@@ -105,7 +107,7 @@ from .tracking import track as track
 
 _io.allow(
     Result, GridResult, FirstPassage, ImpactStatistics, Sensitivity,
-    ResponseMoments, ResponseSpectrum, ResponseAutocorrelation, Fragility, Tracked,
+    ResponseMoments, ResponseSpectrum, ResponseAutocorrelation, Fragility, Tracked, PeakDistribution,
     ShinozukaSato, Jennings,
     Scene, VibroImpactOscillator, Oscillator, MDOFOscillator, Barrier,
     WhiteNoise, SpectralRepresentation, GaussianNodes, ImpactRule, Substeps,

@@ -90,7 +90,7 @@ def _classes() -> dict[str, type]:
 
 RESULTS = (
     "Result", "GridResult", "FirstPassage", "ImpactStatistics", "Sensitivity",
-    "ResponseMoments", "ResponseSpectrum", "ResponseAutocorrelation", "Fragility", "Tracked",
+    "ResponseMoments", "ResponseSpectrum", "ResponseAutocorrelation", "Fragility", "Tracked", "PeakDistribution",
 )  # fmt: skip
 
 
@@ -218,6 +218,9 @@ def _decode(node, arrays, classes: dict[str, type], written: str):
     if name not in classes:
         raise ValueError(f"the file, written by jdpim {written}, names a class {name!r} that this jdpim does not know")
     fields = {k: _decode(v, arrays, classes, written) for k, v in node["fields"].items()}
+    if name == "Result" and "independent" not in fields:  # a file from before Result.independent
+        kinds = {getattr(c, "name", None): c for c in classes.values() if hasattr(c, "independent")}
+        fields["independent"] = getattr(kinds.get(fields.get("method")), "independent", False)
     try:
         return classes[name](**fields)
     except TypeError as e:

@@ -20,8 +20,7 @@ import numpy as np
 
 from ._mdof import Barrier, MDOFOscillator
 from ._models import AbstractOscillator, VibroImpactOscillator
-from ._pytree import check_real, concrete
-from .systems import _number
+from ._pytree import check_number, check_real, concrete
 
 HARMONIC = "xh"  # the coordinate of a harmonic filter (its cosine)
 
@@ -187,8 +186,8 @@ def kanai_tajimi(model: MDOFOscillator, omega_g: float = 15.6, zeta_g: float = 0
         ('x1', 'x2', 'xf', 'v1', 'v2', 'vf')
     """
     model = _structure(model)
-    wg = _number("omega_g", omega_g, low=0.0, low_open=True)
-    zg = _number("zeta_g", zeta_g, low=0.0, low_open=True)
+    wg = check_number("omega_g", omega_g, low=0.0, low_open=True)
+    zg = check_number("zeta_g", zeta_g, low=0.0, low_open=True)
     iota = _influence(model, influence)
     n = model.dimension
     m_iota = np.asarray(model.mass) @ iota
@@ -235,10 +234,10 @@ def clough_penzien(
         ('x', 'xf', 'xc', 'v', 'vf', 'vc')
     """
     model = _structure(model)
-    wg = _number("omega_g", omega_g, low=0.0, low_open=True)
-    zg = _number("zeta_g", zeta_g, low=0.0, low_open=True)
-    wf = _number("omega_f", omega_f, low=0.0, low_open=True)
-    zf = _number("zeta_f", zeta_f, low=0.0, low_open=True)
+    wg = check_number("omega_g", omega_g, low=0.0, low_open=True)
+    zg = check_number("zeta_g", zeta_g, low=0.0, low_open=True)
+    wf = check_number("omega_f", omega_f, low=0.0, low_open=True)
+    zf = check_number("zeta_f", zeta_f, low=0.0, low_open=True)
     iota = _influence(model, influence)
     n = model.dimension
     m_iota = np.asarray(model.mass) @ iota
@@ -273,7 +272,7 @@ def first_order_filter(model: MDOFOscillator, a: float = 1.0) -> MDOFOscillator:
         ('x1', 'x2', 'xf', 'v1', 'v2', 'vf')
     """
     model = _structure(model)
-    rate = _number("a", a, low=0.0, low_open=True)
+    rate = check_number("a", a, low=0.0, low_open=True)
     n, m = model.dimension, model.n_sources
     B = np.asarray(model.gains, dtype=float)
     damping = _block(model, "damping", m)
@@ -303,8 +302,8 @@ def harmonic(model: MDOFOscillator, amplitude: float, frequency: float, directio
         (0.0, 0.0, 1.0)
     """
     model = _structure(model)
-    amp = _number("amplitude", amplitude)
-    w = _number("frequency", frequency, low=0.0, low_open=True)
+    amp = check_number("amplitude", amplitude)
+    w = check_number("frequency", frequency, low=0.0, low_open=True)
     n = model.dimension
     b = np.asarray(model.gains, dtype=float)[:, 0] if direction is None else np.asarray(direction, dtype=float)
     if b.shape != (n,):

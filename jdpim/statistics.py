@@ -106,7 +106,8 @@ def response_moments(result, var) -> ResponseMoments:
     Examples:
         >>> import jdpim, numpy as np
         >>> states = np.random.default_rng(0).normal(size=(500, 3, 2))  # 500 paths, 3 saved times, (x, v)
-        >>> mc = jdpim.Result(times=(1.0, 2.0, 3.0), states=states, weights=np.full(500, 1 / 500), method="monte_carlo")
+        >>> mc = jdpim.Result(times=(1.0, 2.0, 3.0), states=states, weights=np.full(500, 1 / 500),
+        ...                   method="monte_carlo", independent=True)
         >>> stats = jdpim.response_moments(mc, "x")
         >>> stats.variance.shape, stats.variance_stderr.shape
         ((3,), (3,))
@@ -130,7 +131,7 @@ def response_moments(result, var) -> ResponseMoments:
     mean = jnp.sum(w * y, axis=0)
     centred = y - mean[None, :]
     m2, m4 = jnp.sum(w * centred**2, axis=0), jnp.sum(w * centred**4, axis=0)
-    if result.method != "monte_carlo":
+    if not result.independent:
         return ResponseMoments(times=result.times, mean=mean, variance=m2, method=result.method)
     n = jnp.sum(ok, axis=0)
     variance = m2 * n / (n - 1)
@@ -168,7 +169,7 @@ def response_psd(result, var, *, segment: int, start: float | None = None) -> Re
         >>> import jdpim, numpy as np
         >>> states = np.random.default_rng(0).normal(size=(50, 100, 2))  # white: S = 0.1 / (2 pi) per rad/s
         >>> mc = jdpim.Result(times=tuple(0.1 * k for k in range(100)), states=states, weights=np.full(50, 0.02),
-        ...                   method="monte_carlo")
+        ...                   method="monte_carlo", independent=True)
         >>> spectrum = jdpim.response_psd(mc, "x", segment=20)
         >>> spectrum.frequencies.shape
         (11,)
@@ -282,7 +283,7 @@ def _path_average(result: Result, per_path, w):
     """The weighted mean over paths of ``per_path``, ``(N, K)``, and its standard error (Monte Carlo: the spread
     over the paths, the mean's ``N / (N - 1)`` correction applied; otherwise ``None``)."""
     mean = jnp.sum(w[:, None] * per_path, axis=0)
-    if result.method != "monte_carlo":
+    if not result.independent:
         return mean, None
     n = jnp.sum(w > 0)
     variance = jnp.sum(w[:, None] * (per_path - mean[None, :]) ** 2, axis=0) * n / (n - 1)  # over the paths

@@ -14,15 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._mdof import Barrier, MDOFOscillator
-from ._pytree import check_int, check_real
-
-
-def _number(name: str, value, **bounds) -> float:
-    """``value`` as a float, after ``check_real`` (one number, in range; not traced: it sets a matrix)."""
-    if not isinstance(value, (int, float, np.integer, np.floating)) or isinstance(value, bool):
-        raise TypeError(f"{name} must be a number, got {value!r}")
-    check_real(name, value, scalar=True, **bounds)
-    return float(value)
+from ._pytree import check_int, check_number
 
 
 def _shear_frame(n: int, frequency: float, damping_ratio: float, mass: float) -> tuple:
@@ -62,11 +54,11 @@ def impact_damper(
         >>> jdpim.impact_damper(clearance=0.2).coordinates
         ('x1', 'x2', 'v1', 'v2')
     """
-    mu = _number("mass_ratio", mass_ratio, low=0.0, low_open=True)
-    w = _number("frequency", frequency, low=0.0, low_open=True)
-    zeta = _number("damping_ratio", damping_ratio, low=0.0)
-    c = _number("clearance", clearance, low=0.0, low_open=True)
-    r = _number("r", r, low=0.0, high=1.0)
+    mu = check_number("mass_ratio", mass_ratio, low=0.0, low_open=True)
+    w = check_number("frequency", frequency, low=0.0, low_open=True)
+    zeta = check_number("damping_ratio", damping_ratio, low=0.0)
+    c = check_number("clearance", clearance, low=0.0, low_open=True)
+    r = check_number("r", r, low=0.0, high=1.0)
     return MDOFOscillator(
         mass=np.diag([1.0, mu]),
         gains=[[1.0], [0.0]],
@@ -111,10 +103,10 @@ def pounding_frame(
     """
     check_int("n_storeys", n_storeys, low=1)
     n = int(n_storeys)
-    w = _number("frequency", frequency, low=0.0, low_open=True)
-    zeta = _number("damping_ratio", damping_ratio, low=0.0)
-    g = _number("gap", gap, low=0.0, low_open=True)
-    r = _number("r", r, low=0.0, high=1.0)
+    w = check_number("frequency", frequency, low=0.0, low_open=True)
+    zeta = check_number("damping_ratio", damping_ratio, low=0.0)
+    g = check_number("gap", gap, low=0.0, low_open=True)
+    r = check_number("r", r, low=0.0, high=1.0)
     s = n if storey is None else storey
     check_int("storey", s, low=1)
     if s > n:
@@ -132,11 +124,11 @@ def pounding_frame(
 
 
 def _pair(name: str, value, **bounds) -> tuple:
-    """``value`` (one number for both buildings, or two) as two floats, each checked by :func:`_number`."""
+    """``value`` (one number for both buildings, or two) as two floats, each checked by :func:`check_number`."""
     values = value if isinstance(value, (tuple, list)) else (value, value)
     if len(values) != 2:
         raise ValueError(f"{name} must be one number or two (building a, building b), got {value!r}")
-    return tuple(_number(name, v, **bounds) for v in values)
+    return tuple(check_number(name, v, **bounds) for v in values)
 
 
 def adjacent_buildings(
@@ -192,8 +184,8 @@ def adjacent_buildings(
     M, C, K = (np.block([[a, np.zeros((na, nb))], [np.zeros((nb, na)), b]]) for a, b in zip(*frames, strict=True))
     constraints = ()
     if gap is not None:
-        g = _number("gap", gap, low=0.0, low_open=True)
-        r = _number("r", r, low=0.0, high=1.0)
+        g = check_number("gap", gap, low=0.0, low_open=True)
+        r = check_number("r", r, low=0.0, high=1.0)
         normals = np.zeros((min(na, nb), na + nb))
         for s in range(min(na, nb)):
             normals[s, s], normals[s, na + s] = -1.0, 1.0
@@ -276,11 +268,11 @@ def gear_pair(
         >>> [c.position for c in jdpim.gear_pair(backlash=0.2).constraints]
         [-0.2, -0.2]
     """
-    m2 = _number("mass_ratio", mass_ratio, low=0.0, low_open=True)
-    c2 = _number("drag", drag, low=0.0, low_open=True)
-    c1 = _number("bearing_damping", bearing_damping, low=0.0)
-    b = _number("backlash", backlash, low=0.0, low_open=True)
-    r = _number("r", r, low=0.0, high=1.0)
+    m2 = check_number("mass_ratio", mass_ratio, low=0.0, low_open=True)
+    c2 = check_number("drag", drag, low=0.0, low_open=True)
+    c1 = check_number("bearing_damping", bearing_damping, low=0.0)
+    b = check_number("backlash", backlash, low=0.0, low_open=True)
+    r = check_number("r", r, low=0.0, high=1.0)
     return MDOFOscillator(
         mass=np.diag([1.0, m2]),
         gains=[[1.0], [0.0]],

@@ -184,7 +184,11 @@ def test_first_passage_and_impact_statistics_round_trip(tmp_path):
 def test_response_statistics_and_fragility_round_trip(tmp_path):
     states = np.random.default_rng(0).normal(size=(200, 64, 2))
     mc = jdpim.Result(
-        times=tuple(0.5 * np.arange(64)), states=states, weights=np.full(200, 1 / 200), method="monte_carlo"
+        times=tuple(0.5 * np.arange(64)),
+        states=states,
+        weights=np.full(200, 1 / 200),
+        method="monte_carlo",
+        independent=True,
     )
     for stat in (
         jdpim.response_moments(mc, "x"),
@@ -248,6 +252,19 @@ def test_files_of_other_versions_warn_or_fail_in_one_line(tmp_path):
     rewrite(path, lambda doc: doc.update(format=1) or doc["result"]["fields"].update(extra=1))
     with pytest.warns(jdpim.PersistenceWarning), pytest.raises(ValueError, match="does not fit this jdpim"):
         jdpim.load(path)
+
+
+def test_results_of_files_before_the_independent_field_take_their_methods(tmp_path):
+    """A ``Result`` saved without ``independent`` loads with its method's: Monte Carlo's have standard errors."""
+    states = np.random.default_rng(1).normal(size=(8, 1, 2))
+    for method, independent in (("monte_carlo", True), ("dpim", False)):
+        res = jdpim.Result(
+            times=(1.0,), states=states, weights=np.full(8, 1 / 8), method=method, independent=independent
+        )
+        path = tmp_path / f"{method}.npz"
+        res.save(path)
+        rewrite(path, lambda doc: doc["result"]["fields"].pop("independent"))
+        assert jdpim.load(path).independent is independent
 
 
 def test_loading_runs_no_code_from_the_file(tmp_path):

@@ -91,14 +91,16 @@ def test_refusals():
 
 
 def test_the_example_scene_file_is_the_free_pair():
-    """examples/adjacent_buildings.toml spells out adjacent_buildings(gap=None) under Kanai-Tajimi ground motion, and
-    its reliability quantity is the closing."""
+    """examples/adjacent_buildings.toml is adjacent_buildings(gap=None) under modulated Clough-Penzien ground motion,
+    and its reliability and fragility quantity is the closing."""
     from jdpim.cli._scenefile import load
 
     sf = load(pathlib.Path(__file__).parents[1] / "examples" / "adjacent_buildings.toml")
-    built = jdpim.kanai_tajimi(jdpim.adjacent_buildings(frequency=(2 * np.pi, 2.5 * np.pi), gap=None))
+    built = jdpim.clough_penzien(jdpim.adjacent_buildings(frequency=(2 * np.pi, 2.5 * np.pi), gap=None))
     for name in ("mass", "damping", "stiffness", "gains"):
         np.testing.assert_array_equal(np.asarray(getattr(sf.scene.model, name)), np.asarray(getattr(built, name)))
-    contact = jdpim.kanai_tajimi(jdpim.adjacent_buildings(frequency=(2 * np.pi, 2.5 * np.pi), gap=0.1))
-    state = jax.numpy.arange(1.0, 7.0)
+    assert sf.scene.noise.envelope == jdpim.ShinozukaSato(0.2, 0.6)
+    contact = jdpim.clough_penzien(jdpim.adjacent_buildings(frequency=(2 * np.pi, 2.5 * np.pi), gap=0.1))
+    state = jax.numpy.arange(1.0, 9.0)
+    assert float(sf.fragility.quantity(state)) == float(jdpim.systems.closing(contact)(state))
     assert float(sf.reliability.quantity(state)) == float(jdpim.systems.closing(contact)(state))

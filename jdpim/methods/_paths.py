@@ -467,7 +467,8 @@ def _run_local(scene: Scene, rows, *, kind, chunk_size, block_size, devices, pro
 def _finish(scene: Scene, states, weights, method: str) -> Result:
     states = without_diverged(scene, states)
     model = scene.model
-    res = Result(scene.save_at, states, weights, model.bounds(), method, model.coordinates, model_constraints(model))
+    constraints, independent = model_constraints(model), SamplingMethod.named(method).independent
+    res = Result(scene.save_at, states, weights, model.bounds(), method, model.coordinates, constraints, independent)
     counts = concrete(res.n_nonfinite())
     if counts is not None and counts.any():
         warnings.warn(

@@ -8,4 +8,6 @@ from ._fragility import fragility as fragility
 from ._fragility import wilson_interval as wilson_interval
 from ._impacts import ImpactStatistics as ImpactStatistics
 from ._impacts import impact_statistics as impact_statistics
+from ._peak import PeakDistribution as PeakDistribution
+from ._peak import peak_distribution as peak_distribution
 from ._subset import SubsetSimulation as SubsetSimulation

@@ -19,10 +19,9 @@ import numpy as np
 from scipy import special
 
 from .._io import Persistent
-from .._pytree import check_int, concrete, pytree_dataclass, real_array, static_field
+from .._pytree import check_int, check_number, concrete, pytree_dataclass, real_array, static_field
 from .._scene import Scene, parameter_value, with_parameters
 from ..methods._monte_carlo import MonteCarlo
-from ..systems import _number
 from ._first_passage import first_passage
 
 
@@ -100,7 +99,9 @@ def wilson_interval(k, n: int, confidence: float = 0.95) -> tuple:
         [0.0, 0.037]
     """
     n = check_int("n", n, low=1)
-    z = special.ndtri(0.5 + 0.5 * _number("confidence", confidence, low=0.0, high=1.0, low_open=True, high_open=True))
+    z = special.ndtri(
+        0.5 + 0.5 * check_number("confidence", confidence, low=0.0, high=1.0, low_open=True, high_open=True)
+    )
     k = real_array("k", k, "counts")
     if np.any(k < 0) or np.any(k > n):
         raise ValueError(f"k must lie in [0, n = {n}], got {k.tolist()}")
@@ -200,12 +201,12 @@ def fragility(
     noise = concrete(parameter_value(scene, "D"))
     if noise is None or noise.ndim != 0:
         raise ValueError(f"scene's noise intensity D must be one concrete number (not traced), got {scene.noise!r}")
-    level = _number("level", level)
+    level = check_number("level", level)
     s = real_array("intensities", intensities, "a 1-D sequence of positive numbers")
     if s.ndim != 1 or s.size < 2 or not np.all(np.isfinite(s)) or np.any(s <= 0) or np.any(np.diff(s) <= 0):
         raise ValueError(f"intensities must be at least 2 increasing positive finite numbers, got {s.tolist()}")
-    reference = _number("reference", reference, low=0.0, low_open=True)
-    confidence = _number("confidence", confidence, low=0.0, high=1.0, low_open=True, high_open=True)
+    reference = check_number("reference", reference, low=0.0, low_open=True)
+    confidence = check_number("confidence", confidence, low=0.0, high=1.0, low_open=True, high_open=True)
     d = float(noise)
     runs = [
         first_passage(

@@ -165,7 +165,7 @@ class GridResult(AbstractResult):
         if bandwidth is not None:
             nodes, weights = self._axis(var)
             g = jnp.atleast_1d(jnp.asarray(grid, nodes.dtype))
-            k = _density._kernel_matrix(g, nodes, _checked(bandwidth), *lim)
+            k = _density.kernel_matrix(g, nodes, _checked(bandwidth), *lim)
             return jnp.reshape(k @ (weights * self.nodal_marginal(var, t)), jnp.shape(grid))
         _interpolated(var, bounds)
         out = self._interpolate(self.nodal_marginal(var, t), var, grid)
@@ -213,8 +213,8 @@ class GridResult(AbstractResult):
             return jnp.swapaxes(out, 0, -1) if jnp.ndim(out) == 2 else out
         if bandwidth is not None:
             dtype = self.x.dtype
-            kx = _density._kernel_matrix(jnp.atleast_1d(jnp.asarray(ga, dtype)), self.x, _checked(bandwidth[0]), *lim_a)
-            kv = _density._kernel_matrix(jnp.atleast_1d(jnp.asarray(gb, dtype)), self.v, _checked(bandwidth[1]), *lim_b)
+            kx = _density.kernel_matrix(jnp.atleast_1d(jnp.asarray(ga, dtype)), self.x, _checked(bandwidth[0]), *lim_a)
+            kv = _density.kernel_matrix(jnp.atleast_1d(jnp.asarray(gb, dtype)), self.v, _checked(bandwidth[1]), *lim_b)
             out = kx @ self._node_masses(t) @ kv.T
         else:
             _interpolated(vars, bounds)

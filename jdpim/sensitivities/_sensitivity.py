@@ -39,8 +39,8 @@ from ..methods._base import AbstractMethod
 from ..methods._monte_carlo import MonteCarlo
 from ..methods._path_integration import PathIntegration
 from ..methods._paths import SamplingMethod, is_traced
-from ..results._density import _kernel_matrix
 from ..results._density import bandwidth as rule_bandwidth
+from ..results._density import kernel_matrix
 from ..results._samples import Result
 from ..tracking import Sums
 from ._estimators import (
@@ -162,11 +162,11 @@ def _kernel(var: str, grid, sigma, barrier):
 
     def kern(x, v):
         if var == "x":
-            return _kernel_matrix(grid, x, sigma, barrier).T
+            return kernel_matrix(grid, x, sigma, barrier).T
         if var == "v":
-            return _kernel_matrix(grid, v, sigma, None).T
-        kx = _kernel_matrix(grid[0], x, sigma[0], barrier).T
-        kv = _kernel_matrix(grid[1], v, sigma[1], None).T
+            return kernel_matrix(grid, v, sigma, None).T
+        kx = kernel_matrix(grid[0], x, sigma[0], barrier).T
+        kv = kernel_matrix(grid[1], v, sigma[1], None).T
         return kx[:, :, None] * kv[:, None, :]
 
     return kern
@@ -376,7 +376,14 @@ def _pathwise(scene, names, estimators, query: Query, method, rows, weights, chu
     horizon = min(estimators[n].horizon for n in names)
 
     def result(states):
-        return Result(times=scene.save_at, states=states, weights=weights, barrier=barrier, method=method.name)
+        return Result(
+            times=scene.save_at,
+            states=states,
+            weights=weights,
+            barrier=barrier,
+            method=method.name,
+            independent=method.independent,
+        )
 
     def paths(vals):
         s = method.paths(with_parameters(scene, vals), rows, chunk)

@@ -21,7 +21,8 @@ from .._scene import Scene, get_parameter, with_parameters
 from ..methods._base import AbstractMethod, solve
 from ..methods._monte_carlo import MonteCarlo
 from ..methods._path_integration import PathIntegration
-from ..results import _density
+from ..results._density import bandwidth as rule_bandwidth
+from ..results._density import kde_difference, kernel_matrix
 from ..results._samples import reflection
 from ..tracking import Sums
 from ._estimators import CentralDifference, LikelihoodRatio, Score, warn_if_noisy
@@ -55,14 +56,14 @@ def several_dof_sensitivity(
     paths = _scored_paths(scene, scored, var, t, method) if scored else None
     if bandwidth is None:
         y, w = (nominal.samples(var, t), nominal.weights) if nominal is not None else paths.nominal
-        bandwidth = float(_density.bandwidth(y, w, rule, dim=1))
+        bandwidth = float(rule_bandwidth(y, w, rule, dim=1))
     value, stderr = _likelihood_ratio(paths, grid, bandwidth, reflect) if scored else ({}, {})
     for name in central:
         est = estimators[name]
         nominal_value = scene.noise.D if name == "D" else get_parameter(scene.model, name)
         lo, hi = est.pair(name, float(nominal_value))
         runs = [solve(with_parameters(scene, {name: p}), method) for p in (lo, hi)]
-        d, se = _density.kde_difference(
+        d, se = kde_difference(
             runs[0].samples(var, t), runs[1].samples(var, t), nominal.weights, grid, bandwidth, reflect
         )
         value[name], stderr[name] = d / (hi - lo), se / (hi - lo)
@@ -98,7 +99,7 @@ def _likelihood_ratio(paths: _ScoredPaths, grid, sigma: float, reflect):
     grid_flat = jnp.atleast_1d(grid).astype(paths.y.dtype)
 
     def contribution(y, s):
-        return _density._kernel_matrix(grid_flat, y, sigma, reflect).T * s[:, None]
+        return kernel_matrix(grid_flat, y, sigma, reflect).T * s[:, None]
 
     value, stderr = {}, {}
     for name, score in paths.scores.items():
