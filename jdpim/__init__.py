@@ -10,6 +10,9 @@ from . import metrics as metrics
 from . import reliability as reliability
 from . import statistics as statistics
 from . import systems as systems
+
+# resume: runs that survive interruption
+from ._checkpoint import Checkpoint as Checkpoint
 from ._cpu import use_cpu_cores as use_cpu_cores
 from ._distributions import LogNormal as LogNormal
 from ._distributions import Normal as Normal
