@@ -24,7 +24,8 @@ import numpy as np
 from ._io import ENTRY, FORMAT, _classes, _decode, _NotStored, _Writer, versions
 from ._pytree import check_int
 
-_PART = re.compile(r"^(paths\d+-block\d+|level\d+)\.npz$")  # the files a checkpoint writes (and deletes)
+_PART = re.compile(r"^(paths\d+-block\d+|level\d+)\.npz$")  # the part files a checkpoint writes (and deletes)
+_TEMPORARY = re.compile(r"^(paths\d+-block\d+|level\d+)\.npz\.\d+\.tmp$")  # one being written (left by a kill)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -65,7 +66,10 @@ def as_checkpoint(value) -> Checkpoint | None:
 
 def _fingerprint(value) -> dict:
     """``{"digest", "text"}`` of a scene, method or question: SHA-256 of its encoding in the file format (its
-    ``repr``, memory addresses left out, where it holds Python functions), and a short description."""
+    ``repr``, memory addresses left out, where it holds Python functions), and a short description. A method's
+    ``progress`` setting does not count."""
+    if dataclasses.is_dataclass(value) and "progress" in {f.name for f in dataclasses.fields(value)}:
+        value = dataclasses.replace(value, progress=None)  # a progress line does not change a result
     text = re.sub(r" at 0x[0-9a-fA-F]+", "", repr(value))
     sha = hashlib.sha256()
     writer = _Writer(_classes())
@@ -156,9 +160,10 @@ class Session:
         os.replace(temporary, final)
 
     def remove(self) -> None:
-        """Delete the part files (the job finished), and the directory if that leaves it empty."""
+        """Delete the part files (the job finished) and any a kill left half-written, and the directory if that
+        leaves it empty."""
         for name in os.listdir(self.checkpoint.path):
-            if _PART.match(name):
+            if _PART.match(name) or _TEMPORARY.match(name):
                 os.remove(self._file(name))
         with contextlib.suppress(OSError):
             os.rmdir(self.checkpoint.path)

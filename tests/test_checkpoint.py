@@ -117,9 +117,11 @@ def test_subset_simulation_resumes_bit_for_bit(monkeypatch, tmp_path):
     assert_same(out, whole)
 
 
+@pytest.mark.slow
 def test_killed_process_resumes(tmp_path):
-    """A child process running Monte Carlo with a checkpoint is killed by SIGKILL once two blocks are on disk;
-    the run resumed here gives the uninterrupted result bit for bit."""
+    """A child process running Monte Carlo with a checkpoint is killed by SIGKILL once two blocks are on disk
+    (a half-written part beside them); the run resumed here gives the uninterrupted result bit for bit and
+    deletes every part. Slow: the child compiles the run again."""
     path = tmp_path / "killed"
     child = textwrap.dedent(f"""
         import os, sys, time
@@ -144,6 +146,7 @@ def test_killed_process_resumes(tmp_path):
             proc.send_signal(signal.SIGKILL)
             proc.wait()
     assert len(parts(path)) == 2
+    (path / f"paths0-block2.npz.{proc.pid}.tmp").write_bytes(b"PK\x03\x04 cut short")  # a kill during a write
     out = jdpim.solve(SCENE, MC, checkpoint=jdpim.Checkpoint(path, every=16))
     assert_same(out, jdpim.solve(SCENE, MC))
     assert not os.path.exists(path)

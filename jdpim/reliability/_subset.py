@@ -71,7 +71,8 @@ class SubsetSimulation(AbstractFailureMethod):
     scene's default, ``excitation=None``, gives it) and it may have no random parameters. Probabilities are
     given at the scene's last saved time; derivatives ``wrt=...`` with standard errors (module docstring,
     ``docs/reliability.md``). Paths whose state turns non-finite or diverges (as ``jdpim.solve`` counts them)
-    count as below every level, with a ``NonFiniteWarning``.
+    count as below every level, with a ``NonFiniteWarning``. With ``first_passage(..., checkpoint=...)`` every
+    finished level is kept on disk, and an interrupted run resumes from it bit for bit.
     """
 
     n_per_level: int = static_field(default=1000)
