@@ -18,6 +18,8 @@ from ._distributions import LogNormal as LogNormal
 from ._distributions import Normal as Normal
 from ._distributions import TruncatedNormal as TruncatedNormal
 from ._distributions import Uniform as Uniform
+from ._engine.settings import ImpactRule as ImpactRule
+from ._engine.settings import Substeps as Substeps
 from ._envelopes import Jennings as Jennings
 from ._envelopes import ShinozukaSato as ShinozukaSato
 from ._excitation import AbstractExcitation as AbstractExcitation
@@ -25,8 +27,6 @@ from ._excitation import AbstractNodes as AbstractNodes
 from ._excitation import ArrayNodes as ArrayNodes
 from ._excitation import GaussianNodes as GaussianNodes
 from ._excitation import SpectralRepresentation as SpectralRepresentation
-from ._integrate import ImpactRule as ImpactRule
-from ._integrate import Substeps as Substeps
 from ._io import PersistenceWarning as PersistenceWarning
 from ._io import load as load
 from ._mdof import Barrier as Barrier

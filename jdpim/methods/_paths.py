@@ -24,8 +24,9 @@ import numpy as np
 from .._checkpoint import digest
 from .._cpu import host_memory, on_cpu
 from .._distributions import elementary_ppf
+from .._engine.batches import WIDE_CHUNK
 from .._excitation import AbstractExcitation, Clock, Clocked, modulate
-from .._integrate import WIDE_CHUNK, integrate
+from .._integrate import integrate
 from .._points import PointSet, select_points
 from .._pytree import check_int, concrete
 from .._scene import Scene, with_model_parameters
