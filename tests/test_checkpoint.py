@@ -19,7 +19,9 @@ import jdpim
 from jdpim import _checkpoint
 
 SCENE = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=1.0, dt=0.02, save_at=(0.5, 1.0))
-MC = jdpim.MonteCarlo(n_samples=64, seed=3, chunk_size=8)
+# chunks of 2 paths: blocks of 16 chunks (32 paths) by default, so that a run without a checkpoint streams the
+# same blocks and both compile one program
+MC = jdpim.MonteCarlo(n_samples=96, seed=3, chunk_size=2)
 
 
 def assert_same(a, b):
@@ -75,30 +77,29 @@ def resumed(monkeypatch, after: int, run, path, expect_loaded: int):
 
 def test_monte_carlo_resumes_bit_for_bit(monkeypatch, tmp_path):
     path = tmp_path / "mc"
-    ck = jdpim.Checkpoint(path, every=16)  # 4 blocks of 16 paths
     whole = jdpim.solve(SCENE, MC)
-    out = resumed(monkeypatch, 2, lambda: jdpim.solve(SCENE, MC, checkpoint=ck), path, 2)
+    out = resumed(monkeypatch, 2, lambda: jdpim.solve(SCENE, MC, checkpoint=path), path, 2)  # 3 blocks
     assert_same(out, whole)
 
 
 def test_dpim_resumes_bit_for_bit(monkeypatch, tmp_path):
     path = tmp_path / "dpim"
-    method = jdpim.DPIM(n_points=48, chunk_size=8)
+    method = jdpim.DPIM(n_points=48, chunk_size=2)
     whole = jdpim.solve(SCENE, method)
-    out = resumed(monkeypatch, 1, lambda: jdpim.solve(SCENE, method, checkpoint=jdpim.Checkpoint(path, 16)), path, 1)
+    out = resumed(monkeypatch, 1, lambda: jdpim.solve(SCENE, method, checkpoint=path), path, 1)  # 2 blocks
     assert_same(out, whole)
 
 
 def test_first_passage_resumes_bit_for_bit(monkeypatch, tmp_path):
     """With derivatives: the likelihood ratio's scores ride along the nominal paths, and the central difference in
-    ``r`` reruns them twice; every run of paths is kept (3 runs of 4 blocks)."""
+    ``r`` reruns them twice; every run of paths is kept (3 runs of 3 blocks), the interruption in the second."""
     path = tmp_path / "fp"
 
     def run(checkpoint=None):
         return jdpim.first_passage(SCENE, "x", [0.05, 0.1], MC, wrt=("alpha", "r"), checkpoint=checkpoint)
 
     whole = run()
-    out = resumed(monkeypatch, 6, lambda: run(jdpim.Checkpoint(path, every=16)), path, 6)
+    out = resumed(monkeypatch, 4, lambda: run(jdpim.Checkpoint(path)), path, 4)
     assert_same(out, whole)
 
 
@@ -136,8 +137,8 @@ def test_killed_process_resumes(tmp_path):
                 time.sleep(600)
         _checkpoint.Session.store = slow
         scene = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=1.0, dt=0.02, save_at=(0.5, 1.0))
-        method = jdpim.MonteCarlo(n_samples=64, seed=3, chunk_size=8)
-        jdpim.solve(scene, method, checkpoint=jdpim.Checkpoint({str(path)!r}, 16))
+        method = jdpim.MonteCarlo(n_samples=96, seed=3, chunk_size=2)
+        jdpim.solve(scene, method, checkpoint={str(path)!r})
     """)
     with subprocess.Popen([sys.executable, "-c", child], stdout=subprocess.PIPE, text=True) as proc:
         try:
@@ -147,19 +148,19 @@ def test_killed_process_resumes(tmp_path):
             proc.wait()
     assert len(parts(path)) == 2
     (path / f"paths0-block2.npz.{proc.pid}.tmp").write_bytes(b"PK\x03\x04 cut short")  # a kill during a write
-    out = jdpim.solve(SCENE, MC, checkpoint=jdpim.Checkpoint(path, every=16))
+    out = jdpim.solve(SCENE, MC, checkpoint=path)
     assert_same(out, jdpim.solve(SCENE, MC))
     assert not os.path.exists(path)
 
 
 def test_checkpoint_of_another_job_refused(monkeypatch, tmp_path):
     path = tmp_path / "other"
-    ck = jdpim.Checkpoint(path, every=16)
+    ck = jdpim.Checkpoint(path)
     interrupted(monkeypatch, 1, lambda: jdpim.solve(SCENE, MC, checkpoint=ck))
-    other_seed = jdpim.MonteCarlo(n_samples=64, seed=4, chunk_size=8)
+    other_seed = jdpim.MonteCarlo(n_samples=96, seed=4, chunk_size=2)
     with pytest.raises(ValueError, match=r"is of another method .*seed=3.*seed=4"):
         jdpim.solve(SCENE, other_seed, checkpoint=ck)
-    other_chunk = jdpim.MonteCarlo(n_samples=64, seed=3, chunk_size=16)
+    other_chunk = jdpim.MonteCarlo(n_samples=96, seed=3, chunk_size=4)
     with pytest.raises(ValueError, match="is of another method"):
         jdpim.solve(SCENE, other_chunk, checkpoint=ck)
     with pytest.raises(ValueError, match="is of another scene"):
@@ -167,7 +168,7 @@ def test_checkpoint_of_another_job_refused(monkeypatch, tmp_path):
     with pytest.raises(ValueError, match="is of another question"):
         jdpim.first_passage(SCENE, "x", 0.1, MC, checkpoint=ck)
     with pytest.raises(ValueError, match="covers"):  # the same job in other blocks
-        jdpim.solve(SCENE, MC, checkpoint=jdpim.Checkpoint(path, every=32))
+        jdpim.solve(SCENE, MC, checkpoint=jdpim.Checkpoint(path, every=64))
     assert len(parts(path)) == 1  # a refused resume leaves the checkpoint as it was
 
 
