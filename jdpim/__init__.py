@@ -11,6 +11,7 @@ from . import results as results
 from . import statistics as statistics
 from . import systems as systems
 from . import tracking as tracking
+from ._checkpoint import Checkpoint as Checkpoint
 from ._cpu import use_cpu_cores as use_cpu_cores
 from ._distributions import LogNormal as LogNormal
 from ._distributions import Normal as Normal

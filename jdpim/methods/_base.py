@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import abc
 
+from .._checkpoint import session
 from .._scene import Scene
 
 
@@ -21,6 +22,7 @@ class AbstractMethod(abc.ABC):
     """
 
     name: str  # the name results carry in ``Result.method``
+    resumable = False  # whether ``run(scene, checkpoint=...)`` keeps finished work (``solve(..., checkpoint=...)``)
 
     @abc.abstractmethod
     def run(self, scene: Scene):
@@ -35,13 +37,16 @@ class AbstractMethod(abc.ABC):
         )
 
 
-def solve(scene: Scene, method: AbstractMethod):
+def solve(scene: Scene, method: AbstractMethod, *, checkpoint=None):
     r"""Response densities of ``scene`` by ``method``: the one entry point for every method.
 
     Args:
         scene: the physics (:class:`jdpim.Scene`): model, excitation, initial state, random parameters,
             time grid and saved times.
         method: the numerics: ``jdpim.DPIM(...)``, ``jdpim.MonteCarlo(...)`` or ``jdpim.PathIntegration(...)``.
+        checkpoint: DPIM and Monte Carlo: a directory or a :class:`jdpim.Checkpoint` where every finished block
+            of paths is written; the same call after an interruption loads them and runs only the rest, with the
+            same result bit for bit. The part files are deleted when the run finishes (``docs/persistence.md``).
 
     Returns:
         a result with the shared interface (``pdf``, ``joint_pdf``, ``moment``, ``mass``, ``n_nonfinite``,
@@ -63,4 +68,9 @@ def solve(scene: Scene, method: AbstractMethod):
             f"method must be a jdpim method object, e.g. jdpim.DPIM(), jdpim.MonteCarlo() or jdpim.PathIntegration(); "
             f"got {what}"
         )
-    return method.run(scene)
+    if checkpoint is None:
+        return method.run(scene)
+    if not method.resumable:
+        raise ValueError(f"checkpoint applies to jdpim.DPIM and jdpim.MonteCarlo, not {type(method).__name__}")
+    with session(checkpoint, scene=scene, method=method, question="solve") as ses:
+        return method.run(scene, checkpoint=ses)

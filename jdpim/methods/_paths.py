@@ -21,6 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._checkpoint import digest
 from .._cpu import host_memory, on_cpu
 from .._distributions import elementary_ppf
 from .._engine.batches import WIDE_CHUNK
@@ -369,6 +370,7 @@ def run_paths(
     progress=None,
     label="",
     track=None,
+    checkpoint=None,
 ):
     """Saved states ``(N, S, 2)`` of ``rows``, sharded over ``devices`` and streamed in blocks of paths.
 
@@ -387,6 +389,9 @@ def run_paths(
         label: the progress line's prefix.
         track: a quantity carried along every step (a :class:`jdpim._integrate.Tracker`); then the pair
             ``(states, tracked)`` is returned.
+        checkpoint: a :class:`jdpim._checkpoint.Session` (``jdpim.solve(..., checkpoint=...)``) or ``None``:
+            the blocks are then of its ``every`` paths, those it holds are loaded and the others written to it
+            as they finish.
 
     Under ``jax.distributed`` (more than one process) the rows are split over the processes and the states
     gathered on every one (:func:`_across_processes`).
@@ -396,6 +401,8 @@ def run_paths(
     derivatives through that grazing impact are biased).
     """
     if is_traced((scene, rows)):
+        if checkpoint is not None:
+            raise ValueError("checkpoint applies to concrete runs, not under a JAX transformation (jit, grad, vmap)")
         run = functools.partial(simulate, kind=kind, chunk_size=chunk_size, track=track)
         return run(guard(scene), rows) if track is not None else probed(run, guard(scene), rows)
     local = functools.partial(
@@ -407,6 +414,7 @@ def run_paths(
         progress=progress,
         label=label,
         track=track,
+        checkpoint=checkpoint,
     )
     return _across_processes(scene, rows, local, devices) if jax.process_count() > 1 else local(scene, rows)
 
@@ -429,9 +437,11 @@ def _across_processes(scene: Scene, rows, local, devices):
     return jax.tree_util.tree_map(lambda a: jax.device_put(np.asarray(a)[:n], _devices(devices)[0]), gathered)
 
 
-def _run_local(scene: Scene, rows, *, kind, chunk_size, block_size, devices, progress, label, track):
+def _run_local(scene: Scene, rows, *, kind, chunk_size, block_size, devices, progress, label, track, checkpoint):
     """:func:`run_paths` on this process's devices."""
     devices = _devices(devices)
+    if checkpoint is not None and checkpoint.every is not None:
+        block_size = checkpoint.every
     n = rows.shape[0]
     chunk_size = balanced_chunk(n, chunk_size, len(devices))
     unit = chunk_size * len(devices)
@@ -449,16 +459,25 @@ def _run_local(scene: Scene, rows, *, kind, chunk_size, block_size, devices, pro
     pad = n_blocks * block - n
     rows = pad_rows(rows, pad)
     home = home_device(devices)
-    if n_blocks == 1:
+    if n_blocks == 1 and checkpoint is None:
         out = run(scene, jax.device_put(rows, sharding))
         bar.update(n, out)
         if home is not None:
             out = jax.device_put(out, home)
         return jax.tree_util.tree_map(lambda a: a[:n], out) if pad else out
     parts = []
+    if checkpoint is not None:  # what its parts cover: these rows, in these blocks
+        index = checkpoint.next_run()
+        covers = {"kind": kind, "paths": n, "chunk": chunk_size, "block": block, "rows": digest(rows)}
     for b in range(n_blocks):
-        out = run(scene, jax.device_put(rows[b * block : (b + 1) * block], sharding))
-        parts.append(jax.tree_util.tree_map(np.asarray, out))
+        name = f"paths{index}-block{b}.npz" if checkpoint is not None else None
+        out = None if checkpoint is None else checkpoint.load(name, covers)
+        if out is None:
+            out = run(scene, jax.device_put(rows[b * block : (b + 1) * block], sharding))
+            out = jax.tree_util.tree_map(np.asarray, out)
+            if checkpoint is not None:
+                checkpoint.store(name, covers, out)
+        parts.append(out)
         bar.update(min(n, (b + 1) * block))
     target = home or (sharding if n % len(devices) == 0 else devices[0])
     return jax.tree_util.tree_map(lambda *a: jax.device_put(np.concatenate(a)[:n], target), *parts)
@@ -572,16 +591,19 @@ class SamplingMethod(AbstractMethod):
     def inputs(self, scene: Scene) -> tuple:
         """``(rows, weights, chunk_size)``: per-path inputs ``(N, d)``, path probabilities ``(N,)``, paths per chunk."""
 
-    def run(self, scene: Scene) -> Result:
+    resumable = True  # solve(..., checkpoint=...) applies
+
+    def run(self, scene: Scene, checkpoint=None) -> Result:
         rows, weights, chunk = self.inputs(scene)
-        states = run_paths(scene, rows, kind=self.name, chunk_size=chunk, devices=self.devices, progress=self.progress)
+        states = self.paths(scene, rows, chunk, checkpoint=checkpoint)
         return _finish(scene, states, weights, self.name)
 
-    def paths(self, scene: Scene, rows, chunk_size: int, track=None):
+    def paths(self, scene: Scene, rows, chunk_size: int, track=None, checkpoint=None):
         """The saved states ``(N, S, 2 d)`` of the input ``rows`` (from :meth:`inputs`), integrated in chunks of
         ``chunk_size`` paths on this method's devices (:func:`run_paths`); with ``track`` (a
         :class:`jdpim.tracking.AbstractTracked`) the pair ``(states, values)``, the values ``(N, S, k)`` tracked
-        along every step at the saved times. The primitive every question on paths asks for."""
+        along every step at the saved times. The primitive every question on paths asks for; with ``checkpoint``
+        (the job's :class:`jdpim._checkpoint.Session`) its finished blocks are kept and reused."""
         return run_paths(
             scene,
             rows,
@@ -590,6 +612,7 @@ class SamplingMethod(AbstractMethod):
             devices=self.devices,
             progress=self.progress,
             track=track,
+            checkpoint=checkpoint,
         )
 
 

@@ -15,6 +15,7 @@ class AbstractFailureMethod(abc.ABC):
     """
 
     name: str
+    resumable = False  # whether its first_passage keeps finished work in the query's checkpoint
 
     @abc.abstractmethod
     def first_passage(self, scene, query):

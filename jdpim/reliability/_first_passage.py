@@ -7,12 +7,14 @@ integration absorbs the density where ``q > level``.
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
 from collections.abc import Callable
 
 import jax
 import numpy as np
 
+from .._checkpoint import session
 from .._pytree import check_int, concrete, real_array
 from .._scene import Scene, parameter_value
 from ..methods._base import AbstractMethod
@@ -99,6 +101,7 @@ def first_passage(
     wrt=(),
     estimator=None,
     replicates: int | None = None,
+    checkpoint=None,
 ) -> FirstPassage:
     r"""The probability that ``var`` has exceeded ``level`` at some time in ``[0, t]``, for every saved ``t``.
 
@@ -132,6 +135,10 @@ def first_passage(
             (:func:`jdpim.randomised_points`, seeds ``0 .. R - 1``), averaged, with the standard errors of the
             means from their spread (``R`` times the cost of one run). ``None``: one run on the method's points,
             without an error estimate.
+        checkpoint: Monte Carlo, DPIM and subset simulation: a directory or a :class:`jdpim.Checkpoint` where
+            every finished block of paths (subset simulation: every level) is written; the same call after an
+            interruption loads them and runs only the rest, with the same result bit for bit. The part files are
+            deleted when the run finishes (``docs/persistence.md``).
 
     Returns:
         :class:`FirstPassage`: ``probability`` and ``probability_stderr`` of shape ``(S, L)``.
@@ -150,11 +157,21 @@ def first_passage(
     query = FirstPassageQuery(
         _quantity(scene, var), checked_levels(scene, var, level), *_derivatives(scene, wrt, estimator), estimator
     )
-    if replicates is None:
-        out = _answer(scene, method, query)
-    else:
+    if replicates is not None:
         replicates = check_int("replicates", replicates, low=2)
-        out = FirstPassage.mean_of([_answer(scene, method.replicate(scene, k), query) for k in range(replicates)])
+    if checkpoint is not None and not method.resumable:
+        raise ValueError(
+            "checkpoint applies to jdpim.MonteCarlo, jdpim.DPIM and jdpim.SubsetSimulation, not "
+            f"{type(method).__name__}"
+        )
+    question = ("first_passage", var if isinstance(var, str) else getattr(var, "__qualname__", repr(var)),
+                query.levels, query.wrt, repr(estimator), replicates)  # fmt: skip
+    with session(checkpoint, scene=scene, method=method, question=question) as ses:
+        query = dataclasses.replace(query, checkpoint=ses)
+        if replicates is None:
+            out = _answer(scene, method, query)
+        else:
+            out = FirstPassage.mean_of([_answer(scene, method.replicate(scene, k), query) for k in range(replicates)])
     lost = concrete(out.lost_mass)
     if lost is not None and lost.any():
         warnings.warn(

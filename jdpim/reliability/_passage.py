@@ -35,6 +35,7 @@ class FirstPassageQuery:
     values: dict = dataclasses.field(default_factory=dict)  # their nominal values (floats)
     estimators: dict = dataclasses.field(default_factory=dict)  # name -> estimator
     estimator: Any = None  # the one the user gave (None: each method's default)
+    checkpoint: Any = None  # the job's jdpim._checkpoint.Session, or None
 
 
 @pytree_dataclass

@@ -44,7 +44,7 @@ def sampled_first_passage(method, scene: Scene, query) -> FirstPassage:
     track = Stacked((running, Sums(Score(tuple(settings), scene.dt)))) if settings else running
 
     def tracked(scene):
-        return method.paths(scene, rows, chunk, track=track)[1]
+        return method.paths(scene, rows, chunk, track=track, checkpoint=query.checkpoint)[1]
 
     nominal = watch(tracked(scene), INDICATOR)
     sampled = method.independent  # independent samples: a sampling standard error

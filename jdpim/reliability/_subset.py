@@ -71,7 +71,8 @@ class SubsetSimulation(AbstractFailureMethod):
     scene's default, ``excitation=None``, gives it) and it may have no random parameters. Probabilities are
     given at the scene's last saved time; derivatives ``wrt=...`` with standard errors (module docstring,
     ``docs/reliability.md``). Paths whose state turns non-finite or diverges (as ``jdpim.solve`` counts them)
-    count as below every level, with a ``NonFiniteWarning``.
+    count as below every level, with a ``NonFiniteWarning``. With ``first_passage(..., checkpoint=...)`` every
+    finished level is kept on disk, and an interrupted run resumes from it bit for bit.
     """
 
     n_per_level: int = static_field(default=1000)
@@ -80,6 +81,7 @@ class SubsetSimulation(AbstractFailureMethod):
     width: float = static_field(default=1.0)
     max_levels: int = static_field(default=10)
     name = "subset_simulation"
+    resumable = True  # first_passage(..., checkpoint=...) keeps every finished level
     default_excitation = GaussianNodes()  # its input space: the normals at the nodes
 
     def __post_init__(self):
@@ -183,21 +185,34 @@ def _variance_of_mean(level: _Level, c: np.ndarray, n_chains: int) -> float:
     return var * (1.0 + gamma) / c.size
 
 
-def _run_levels(method: SubsetSimulation, scene: Scene, response, top: float) -> tuple:
+def _run_levels(method: SubsetSimulation, scene: Scene, response, top: float, checkpoint=None) -> tuple:
     """``(levels, evaluations, n_bad)``: the levels up to the first whose threshold reaches ``top`` (or
-    ``max_levels``), the responses computed and how many of them were not finite."""
+    ``max_levels``), the responses computed and how many of them were not finite. With ``checkpoint`` (a
+    :class:`jdpim._checkpoint.Session`) every level is written when finished, and those written are loaded."""
     n, p0 = method.n_per_level, method.p0
     n_c, n_s = int(round(p0 * n)), int(round(1.0 / p0))
-    key = jax.random.key(method.seed)
-    key, k0 = jax.random.split(key)
-    z = jax.random.normal(k0, (n, 2 * scene.n_steps + 1, scene.n_sources), jnp.float32)
-    y, extras, bad = _evaluate(response, scene, z)
-    levels, n_bad = [_Level(z, y, extras, -np.inf, False)], int(np.sum(bad))
-    for _ in range(method.max_levels - 1):
-        level = levels[-1]
-        threshold = np.sort(level.y)[n - n_c - 1 : n - n_c + 1].mean()  # the 1 - p0 quantile
-        if threshold >= top:
-            break
+    covers = {"n_per_level": n, "p0": p0}
+
+    def finished(i, key, n_bad, make):
+        """Level ``i`` and the key and count after it: loaded from ``checkpoint``, else ``make()`` and written."""
+        part = None if checkpoint is None else checkpoint.load(f"level{i}.npz", covers)
+        if part is not None:
+            z, y, extras, threshold, chained, key_data, n_bad = part
+            level = _Level(jnp.asarray(z), y, extras, float(threshold), bool(chained))
+            return level, jax.random.wrap_key_data(jnp.asarray(key_data)), int(n_bad)
+        level, key, n_bad = make(key, n_bad)
+        if checkpoint is not None:
+            part = (np.asarray(level.z), level.y, level.extras, level.threshold, level.chained)
+            checkpoint.store(f"level{i}.npz", covers, (*part, np.asarray(jax.random.key_data(key)), n_bad))
+        return level, key, n_bad
+
+    def first(key, n_bad):
+        key, k0 = jax.random.split(key)
+        z = jax.random.normal(k0, (n, 2 * scene.n_steps + 1, scene.n_sources), jnp.float32)
+        y, extras, bad = _evaluate(response, scene, z)
+        return _Level(z, y, extras, -np.inf, False), key, n_bad + int(np.sum(bad))
+
+    def chains(level, threshold, key, n_bad):
         # seeds of the next level: the p0 N samples above the threshold, each the start of a chain
         order = np.argsort(level.y)[n - n_c :]
         state, y_state, x_state = level.z[order], level.y[order], level.extras[order]
@@ -215,7 +230,17 @@ def _run_levels(method: SubsetSimulation, scene: Scene, response, top: float) ->
             zs.append(state)
             ys.append(y_state)
             xs.append(x_state)
-        levels.append(_Level(jnp.concatenate(zs), np.concatenate(ys), np.concatenate(xs), threshold, True))
+        return _Level(jnp.concatenate(zs), np.concatenate(ys), np.concatenate(xs), threshold, True), key, n_bad
+
+    level, key, n_bad = finished(0, jax.random.key(method.seed), 0, first)
+    levels = [level]
+    for i in range(1, method.max_levels):
+        level = levels[-1]
+        threshold = np.sort(level.y)[n - n_c - 1 : n - n_c + 1].mean()  # the 1 - p0 quantile
+        if threshold >= top:
+            break
+        level, key, n_bad = finished(i, key, n_bad, functools.partial(chains, level, threshold))
+        levels.append(level)
     return levels, n * len(levels), n_bad
 
 
@@ -260,7 +285,7 @@ def _subset_simulation(method: SubsetSimulation, scene: Scene, query, estimators
     excitation = scene.excitation if scene.excitation is not None else method.default_excitation
     settings = {name: est for name, est in estimators.items() if isinstance(est, LikelihoodRatio)}
     response = _response(query.quantity, excitation, tuple(settings), scene.dt)
-    levels, evaluations, n_bad = _run_levels(method, scene, response, levels_asked.max())
+    levels, evaluations, n_bad = _run_levels(method, scene, response, levels_asked.max(), query.checkpoint)
     # the factor p0^i and the squared c.o.v. of the levels below level i, Au & Beck's sum
     factors, before = [1.0], [0.0]
     for level, upper in zip(levels[:-1], levels[1:], strict=False):
