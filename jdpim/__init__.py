@@ -3,6 +3,8 @@ Integral Method (DPIM), with Monte Carlo simulation and exact solutions beside i
 
 import importlib.metadata as _metadata
 
+# design: design by gradient (the module jdpim.design)
+from . import design as design
 from . import exact as exact
 from . import figures as figures
 from . import filters as filters
