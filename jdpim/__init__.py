@@ -2,6 +2,7 @@
 Integral Method (DPIM), with Monte Carlo simulation and exact solutions beside it, in JAX."""
 
 from . import _io
+from . import design as design
 from . import exact as exact
 from . import figures as figures
 from . import filters as filters
