@@ -118,11 +118,10 @@ def test_subset_simulation_resumes_bit_for_bit(monkeypatch, tmp_path):
     assert_same(out, whole)
 
 
-@pytest.mark.slow
 def test_killed_process_resumes(tmp_path):
     """A child process running Monte Carlo with a checkpoint is killed by SIGKILL once two blocks are on disk
     (a half-written part beside them); the run resumed here gives the uninterrupted result bit for bit and
-    deletes every part. Slow: the child compiles the run again."""
+    deletes every part (the child compiles the run itself: about 11 s)."""
     path = tmp_path / "killed"
     child = textwrap.dedent(f"""
         import os, sys, time
