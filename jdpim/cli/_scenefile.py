@@ -675,16 +675,8 @@ def _fragility(f: _Reader, scene, derived: tuple[Linear, ...], names: tuple[str,
     return FragilityCurve(_quantity_of(scene, name, two_sided, named), level, intensities, reference, confidence)
 
 
-def load(path) -> SceneFile:
-    """Read and check a scene file (see the module docstring for its keys).
-
-    Raises:
-        SceneFileError: one line naming the file and the key (missing file, TOML syntax, unknown key,
-            wrong type, value out of range, or a scene the library rejects).
-    """
-    import jdpim
-
-    path = pathlib.Path(path)
+def _read(path: pathlib.Path) -> dict:
+    """The file's tables, once it reads as TOML with no unknown table and every table of ``_REQUIRED``."""
     try:
         raw = tomllib.loads(path.read_text())
     except FileNotFoundError:
@@ -699,36 +691,55 @@ def load(path) -> SceneFile:
     for name in _REQUIRED:
         if name not in raw:
             raise SceneFileError(f"{path.name}: [{name}]: missing table")
-    tables = {name: _Reader(path, name, raw.get(name, {}), keys=None if name == "model" else ()) for name in _SCHEMA}
+    return raw
 
-    m = tables["model"]
+
+def _model(m: _Reader):
+    """The model of ``[model]`` (``kind`` one of ``KINDS``, ``"vibro_impact"`` by default) with its filters
+    appended, and its table with the defaults filled in."""
     kind = m.table.get("kind", "vibro_impact")
     if kind not in KINDS:
         m.fail("kind", f"must be one of {list(KINDS)}, got {kind!r}")
     m.only(_MODEL_KEYS[kind])
-    mdof = kind != "vibro_impact"  # several degrees of freedom: a jdpim.MDOFOscillator
-    model, model_table = _mdof(m) if kind == "mdof" else _example(m, kind) if mdof else _vibro_impact(m)
-    if mdof:
-        model, model_table["filters"] = _filters(m, model)
-    D = _intensity(tables["noise"], model.n_sources) if mdof else tables["noise"].number("D", low=0.0)
-    envelope, envelope_table = _envelope(tables["noise"])
-    t = tables["time"]
+    if kind == "vibro_impact":
+        return _vibro_impact(m)
+    model, table = _mdof(m) if kind == "mdof" else _example(m, kind)
+    model, table["filters"] = _filters(m, model)
+    return model, table
+
+
+def _noise(noise: _Reader, model, mdof: bool):
+    """``[noise]``: the intensity ``D`` (a number, or for several degrees of freedom see :func:`_intensity`), the
+    envelope (``None``: stationary), and the table with the defaults filled in."""
+    D = _intensity(noise, model.n_sources) if mdof else noise.number("D", low=0.0)
+    envelope, envelope_table = _envelope(noise)
+    return D, envelope, {"D": D, **({"envelope": envelope_table} if envelope is not None else {})}
+
+
+def _time(t: _Reader) -> tuple[float, float, list[float]]:
+    """``[time]``: ``t_end`` > 0 and ``dt`` > 0 (s), and the times ``save_at`` in [0, t_end] (default ``[t_end]``)."""
     t_end = t.number("t_end", low=0.0, low_open=True)
     dt = t.number("dt", low=0.0, low_open=True)
     save_at = t.table.get("save_at", [t_end])
     if not isinstance(save_at, list) or not save_at:
         t.fail("save_at", f"must be a non-empty array of times in s, got {save_at!r}")
-    save_at = [t.real("save_at", s, low=0.0, high=t_end) for s in save_at]
-    init = tables["initial"]
-    if mdof:  # arrays of n numbers; by default at rest at the model's start (0, or 1 for a harmonic filter)
-        start = list(model.start or (0.0,) * model.dimension)
-        x0, v0 = (
-            init.vector(key, model.dimension, default) for key, default in (("x0", start), ("v0", [0.0] * len(start)))
-        )
-    else:
-        x0, v0 = init.number("x0", NONE, allow_none=True), init.number("v0", 0.0)
+    return t_end, dt, [t.real("save_at", s, low=0.0, high=t_end) for s in save_at]
 
-    me = tables["method"]
+
+def _initial(init: _Reader, model, mdof: bool):
+    """``[initial]``: ``x0`` and ``v0``, numbers for one degree of freedom (``x0`` ``None`` by default: at the
+    barrier, or 0), arrays of ``n`` numbers for several (by default at rest at the model's start)."""
+    if not mdof:
+        return init.number("x0", NONE, allow_none=True), init.number("v0", 0.0)
+    start = list(model.start or (0.0,) * model.dimension)  # the model's start: 0, or 1 for a harmonic filter
+    return tuple(
+        init.vector(key, model.dimension, default) for key, default in (("x0", start), ("v0", [0.0] * len(start)))
+    )
+
+
+def _methods(me: _Reader) -> tuple[tuple[Method, ...], str, dict]:
+    """``[method]``: the methods in the order named, Monte Carlo's forcing (one of ``FORCINGS``), and the table
+    with the defaults filled in."""
     names = me.choices("name", None, METHODS) if "name" in me.table else me.fail("name", "is required")
     seed = me.integer("seed", 0, low=0)
     forcing = me.table.get("forcing", FORCINGS[0])
@@ -743,9 +754,20 @@ def load(path) -> SceneFile:
         else Method("monte_carlo", me.integer("n_samples", 10_000, low=2), seed)
         for name in names
     )
-    o = tables["output"]
+    table = {
+        "name": list(names),
+        **{("n_points" if x.name == "dpim" else "n_samples"): x.n_paths for x in methods},
+        "seed": seed,
+        **({"forcing": forcing} if "monte_carlo" in names else {}),
+    }
+    return methods, forcing, table
+
+
+def _outputs(o: _Reader, model, mdof: bool) -> tuple[Outputs, dict]:
+    """``[output]``: what the run stores, and the table with the defaults filled in (one degree of freedom:
+    ``densities`` from ``DENSITIES``; several: the coordinates' marginals and the pairs ``joint``)."""
+    coords = model.coordinates
     if mdof:
-        coords = model.coordinates
         densities, joint = o.choices("densities", list(coords), coords), o.pairs("joint", coords)
         marginals = densities
     else:
@@ -757,45 +779,31 @@ def load(path) -> SceneFile:
     outputs = Outputs(
         marginals=marginals,
         joint=joint,
-        derived=_derived(o, model.coordinates),
+        derived=_derived(o, coords),
         states=o.boolean("states", False),
         figures=o.boolean("figures", True),
         n_grid=o.integer("n_grid", 201, low=2),
     )
-    try:
-        noise = jdpim.WhiteNoise(D=D, envelope=envelope)
-        excitation = excitation_of(forcing)
-        scene = jdpim.Scene(
-            model, noise=noise, x0=x0, v0=v0, t_end=t_end, dt=dt, save_at=save_at, excitation=excitation
-        )
-    except (ValueError, TypeError) as err:
-        raise _library_error(path, err) from None
-    reliability = _reliability(tables["reliability"], scene, outputs.derived) if "reliability" in raw else None
-    fragility = _fragility(tables["fragility"], scene, outputs.derived, names) if "fragility" in raw else None
-    table = {
-        "model": model_table,
-        "noise": {"D": D, **({"envelope": envelope_table} if envelope is not None else {})},
-        "time": {"t_end": t_end, "dt": dt, "save_at": list(scene.save_at)},
-        "initial": {"x0": NONE if x0 is None else x0, "v0": v0},
-        "method": {
-            "name": list(names),
-            **{("n_points" if x.name == "dpim" else "n_samples"): x.n_paths for x in methods},
-            "seed": seed,
-            **({"forcing": forcing} if "monte_carlo" in names else {}),
-        },
-        "output": {
-            "densities": list(densities),
-            **({"joint": [list(p) for p in joint]} if mdof else {}),
-            **(
-                {"derived": {q.name: {model.coordinates[i]: c for i, c in q.terms} for q in outputs.derived}}
-                if outputs.derived
-                else {}
-            ),
-            "states": outputs.states,
-            "figures": outputs.figures,
-            "n_grid": outputs.n_grid,
-        },
+    return outputs, {
+        "densities": list(densities),
+        **({"joint": [list(p) for p in joint]} if mdof else {}),
+        **(
+            {"derived": {q.name: {coords[i]: c for i, c in q.terms} for q in outputs.derived}}
+            if outputs.derived
+            else {}
+        ),
+        "states": outputs.states,
+        "figures": outputs.figures,
+        "n_grid": outputs.n_grid,
     }
+
+
+def _questions(raw: dict, tables: dict, scene, derived: tuple[Linear, ...], names: tuple[str, ...]) -> tuple:
+    """The questions of the file, ``[reliability]`` and ``[fragility]`` (each ``None`` where the file has no such
+    table), and their tables as stored, with the defaults filled in."""
+    reliability = _reliability(tables["reliability"], scene, derived) if "reliability" in raw else None
+    fragility = _fragility(tables["fragility"], scene, derived, names) if "fragility" in raw else None
+    table = {}
     if reliability is not None:
         table["reliability"] = {"quantity": str(reliability.quantity), "levels": list(reliability.levels)}
     if fragility is not None:
@@ -804,4 +812,46 @@ def load(path) -> SceneFile:
             **{k: getattr(fragility, k) for k in ("level", "reference", "confidence")},
             "intensities": list(fragility.intensities),
         }
+    return reliability, fragility, table
+
+
+def load(path) -> SceneFile:
+    """Read and check a scene file (see the module docstring for its keys).
+
+    Raises:
+        SceneFileError: one line naming the file and the key (missing file, TOML syntax, unknown key,
+            wrong type, value out of range, or a scene the library rejects).
+    """
+    import jdpim
+
+    path = pathlib.Path(path)
+    raw = _read(path)
+    tables = {name: _Reader(path, name, raw.get(name, {}), keys=None if name == "model" else ()) for name in _SCHEMA}
+    model, model_table = _model(tables["model"])
+    mdof = model_table["kind"] != "vibro_impact"  # several degrees of freedom: a jdpim.MDOFOscillator
+    D, envelope, noise_table = _noise(tables["noise"], model, mdof)
+    t_end, dt, save_at = _time(tables["time"])
+    x0, v0 = _initial(tables["initial"], model, mdof)
+    methods, forcing, method_table = _methods(tables["method"])
+    outputs, output_table = _outputs(tables["output"], model, mdof)
+    try:
+        noise = jdpim.WhiteNoise(D=D, envelope=envelope)
+        excitation = excitation_of(forcing)
+        scene = jdpim.Scene(
+            model, noise=noise, x0=x0, v0=v0, t_end=t_end, dt=dt, save_at=save_at, excitation=excitation
+        )
+    except (ValueError, TypeError) as err:
+        raise _library_error(path, err) from None
+    reliability, fragility, question_tables = _questions(
+        raw, tables, scene, outputs.derived, tuple(method_table["name"])
+    )
+    table = {
+        "model": model_table,
+        "noise": noise_table,
+        "time": {"t_end": t_end, "dt": dt, "save_at": list(scene.save_at)},
+        "initial": {"x0": NONE if x0 is None else x0, "v0": v0},
+        "method": method_table,
+        "output": output_table,
+        **question_tables,
+    }
     return SceneFile(path, scene, methods, outputs, table, reliability, fragility)
