@@ -2,6 +2,7 @@
 wrt=...)``): against Monte Carlo, for drift parameters, the noise intensity, restitution and a system of several
 degrees of freedom; the method's place among the methods; diverged paths."""
 
+import jax
 import numpy as np
 import pytest
 
@@ -94,6 +95,12 @@ def test_a_method_for_failure_probabilities_only():
         jdpim.first_passage(SCENE, "x", 1.0, ss, wrt="alpha", estimator=jdpim.LikelihoodRatio(window=1.0))
     with pytest.raises(ValueError, match="states its own error"):
         jdpim.first_passage(SCENE, "x", 1.0, ss, replicates=2)
+
+    def under_jit(D):
+        return jdpim.first_passage(SCENE.replace(noise=jdpim.WhiteNoise(D)), "x", 1.0, ss).probability
+
+    with pytest.raises(TypeError, match="SubsetSimulation cannot run under a JAX transformation"):
+        jax.jit(under_jit)(0.03)
 
 
 def test_diverged_paths_count_below_every_level():

@@ -49,7 +49,7 @@ from .._excitation import GaussianNodes
 from .._integrate import RunningMax, Stacked, Sums
 from .._pytree import check_int, check_real, pytree_dataclass, static_field
 from .._scene import Scene, with_parameters
-from ..methods._paths import NonFiniteWarning, integrate_forcing, without_diverged
+from ..methods._paths import NonFiniteWarning, integrate_forcing, is_traced, without_diverged
 from ..sensitivities._estimators import CentralDifference, LikelihoodRatio, Score
 from ._failure import AbstractFailureMethod
 from ._passage import FirstPassage
@@ -98,6 +98,11 @@ class SubsetSimulation(AbstractFailureMethod):
             )
 
     def first_passage(self, scene: Scene, query) -> FirstPassage:
+        if isinstance(jnp.zeros(()), jax.core.Tracer) or is_traced(scene):
+            raise TypeError(
+                "SubsetSimulation cannot run under a JAX transformation (jit, vmap, grad): it picks each level's "
+                "threshold and seeds from concrete responses; call first_passage outside, with wrt=... for derivatives"
+            )
         if scene.random:
             raise ValueError("SubsetSimulation needs a scene without random parameters")
         return _subset_simulation(self, scene, query, _estimators(query))
