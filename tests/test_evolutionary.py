@@ -163,3 +163,45 @@ def _falling(t):
 
 def _negative(omega, t):
     return 2.0 - t
+
+
+SCENE_FILE = """
+[model]
+alpha = 0.2
+gamma = "none"
+barrier = "none"
+r = 0.5
+[noise]
+D = 0.1
+[noise.envelope]
+kind = "evolutionary_kanai_tajimi"
+omega_g = [[0.0, 20.0], [12.0, 3.0]]
+zeta_g = 0.4
+envelope = { kind = "shinozuka_sato" }
+[time]
+t_end = 1.0
+dt = 0.02
+[method]
+name = "monte_carlo"
+n_samples = 16
+"""
+
+
+def test_scene_file_key(tmp_path):
+    """``[noise] envelope = { kind = "evolutionary_kanai_tajimi", ... }`` is the library's object; Monte Carlo under it
+    needs ``forcing = "spectral"``; errors name the key."""
+    from jdpim.cli._scenefile import SceneFileError, load
+
+    path = tmp_path / "s.toml"
+    path.write_text(SCENE_FILE + 'forcing = "spectral"\n')
+    noise = load(path).scene.noise
+    assert noise == jdpim.WhiteNoise(D=0.1, envelope=GROUND)
+    path.write_text(SCENE_FILE)
+    with pytest.raises(SceneFileError, match=r'^s.toml: \[method\] forcing: must be "spectral" under an evolutionary'):
+        load(path)
+    path.write_text(SCENE_FILE.replace("zeta_g = 0.4", "zeta_g = -0.4") + 'forcing = "spectral"\n')
+    with pytest.raises(SceneFileError, match=r"^s.toml: \[noise\] envelope.zeta_g: must lie in \(0, inf\)"):
+        load(path)
+    path.write_text(SCENE_FILE.replace('kind = "shinozuka_sato"', 'kind = "evolutionary_kanai_tajimi"'))
+    with pytest.raises(SceneFileError, match=r"^s.toml: \[noise\] envelope.envelope.kind: must be one of \['shinozuka"):
+        load(path)
