@@ -143,7 +143,7 @@ def _law(name: str, value):
         try:
             check_envelope(value)
         except TypeError as err:
-            raise TypeError(f"{name}: {err}".replace("envelope", name)) from None
+            raise TypeError(str(err).replace("envelope", name).replace("e(t)", f"{name}(t)")) from None
         return value
     if isinstance(value, (list, tuple)):
         try:

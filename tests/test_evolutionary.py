@@ -9,7 +9,12 @@ import numpy as np
 import pytest
 
 import jdpim
-from jdpim.methods._paths import path_forcing
+from jdpim._excitation import (
+    gaussian_coefficients,
+    random_function_coefficients,
+    synthesize,
+    synthesize_evolutionary,
+)
 
 ENVELOPE = jdpim.ShinozukaSato(b1=0.1, b2=0.5)
 TIMES = tuple(float(t) for t in range(2, 22, 2))
@@ -70,26 +75,25 @@ def test_dpim_variances_within_their_replicate_spread(frame_scene, frame_exact):
 
 
 def test_a_separable_spectrum_is_the_uniformly_modulated_forcing():
-    """``|A(omega, t)|^2 = e(t)^2`` gives the forcing of the envelope ``e`` (same seed, same coefficients) to float32
-    rounding (1e-6 of the largest value), for Monte Carlo keys and DPIM points."""
-    model = jdpim.VibroImpactOscillator(alpha=0.2, gamma=None, barrier=None, omega=1.5)
-    modulated = jdpim.Scene(
-        model,
-        noise=jdpim.WhiteNoise(0.1, envelope=ENVELOPE),
-        t_end=4.0,
-        dt=0.02,
-        save_at=(2.0, 4.0),
-        excitation=jdpim.SpectralRepresentation(),
-    )
-    shaped = modulated.replace(noise=jdpim.WhiteNoise(0.1, envelope=jdpim.EvolutionarySpectrum(_squared_envelope)))
-    keys = jax.random.key_data(jax.random.split(jax.random.key(0), 8))
-    points = jax.random.uniform(jax.random.key(1), (8, 2), minval=-np.pi, maxval=np.pi)
-    t = 0.01 * np.arange(2 * 200 + 1)  # the half-step nodes
-    for kind, rows in (("mc", keys), ("dpim", points)):
-        a = jax.jit(lambda r, kind=kind: path_forcing(modulated, kind, r)[0].values)(rows)
-        b = jax.jit(lambda r, kind=kind: path_forcing(shaped, kind, r)[0].values)(rows)
-        expected = np.asarray(a) * np.asarray(ENVELOPE(t))[:, None, None]
-        np.testing.assert_allclose(np.asarray(b), expected, rtol=0, atol=1e-6 * np.abs(expected).max())
+    """``|A(omega, t)|^2 = e(t)^2`` gives the forcing of the envelope ``e`` from the same coefficients (Monte Carlo's
+    Gaussian ones from the same keys, DPIM's random functions of the same points) to float32 rounding (1e-6 of the
+    largest value): the direct sum is the FFT's, phases and time origin included."""
+    grid = jdpim.SpectralRepresentation().grid(t_end=4.0, dt=0.02)
+    mixing = np.sqrt(np.full((1, 1), 0.1, np.float32))
+    points = np.random.default_rng(1).uniform(-np.pi, np.pi, (8, 2)).astype(np.float32)
+
+    @jax.jit
+    def both(points):
+        keys = jax.random.split(jax.random.key(0), 8)
+        gaussian = jax.vmap(lambda k: gaussian_coefficients(k, 1, grid, mixing, jnp.float32))(keys)
+        functions = jax.vmap(lambda p: random_function_coefficients(p, grid, mixing))(points)
+        c = jnp.concatenate([gaussian, functions])
+        spectrum = jdpim.EvolutionarySpectrum(_squared_envelope)
+        return synthesize_evolutionary(c, grid, spectrum, 0.01, jnp.float32), synthesize(c, grid)
+
+    shaped, fft = both(points)
+    expected = np.asarray(fft) * np.asarray(ENVELOPE(0.01 * np.arange(grid.n_half)))[:, None, None]
+    np.testing.assert_allclose(np.asarray(shaped), expected, rtol=0, atol=1e-6 * np.abs(expected).max())
 
 
 def _squared_envelope(omega, t):
