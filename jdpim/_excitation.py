@@ -93,7 +93,8 @@ class AbstractExcitation(abc.ABC):
     - ``from_normals(scene, z)`` (optional): the forcing of standard normals at the nodes (subset simulation).
 
     The envelope of a modulated noise (``WhiteNoise(envelope=...)``) multiplies whatever forcing an excitation
-    gives (:func:`modulate`), so an excitation knows nothing of it.
+    gives (:func:`modulate`), so an excitation knows nothing of it. An evolutionary spectrum, which depends on the
+    frequency too, can only shape the harmonics of :class:`SpectralRepresentation`, which applies it itself.
     """
 
     @abc.abstractmethod
@@ -209,14 +210,15 @@ class SpectralRepresentation(AbstractExcitation):
         return (ANGLE,) * (2 * n_sources)
 
     def from_inputs(self, scene, theta) -> ArrayNodes:
-        """The forcing of the random functions of ``theta`` ``(n, 2 m)``, by one FFT."""
+        """The forcing of the random functions of ``theta`` ``(n, 2 m)``, by one FFT (:func:`spectral_nodes`)."""
         grid = checked_grid(self, scene)
         mixing = scene.noise.mixing().astype(scene.float_dtype)
         coeffs = jax.vmap(lambda t: random_function_coefficients(t, grid, mixing))(theta)
         return spectral_nodes(scene, coeffs, grid)
 
     def from_keys(self, scene, keys) -> ArrayNodes:
-        """The forcing of Gaussian coefficients drawn from each path's key ``(n, 2)``, by one FFT."""
+        """The forcing of Gaussian coefficients drawn from each path's key ``(n, 2)``, by one FFT
+        (:func:`spectral_nodes`)."""
         grid = checked_grid(self, scene)
         dtype = scene.float_dtype
         mixing = scene.noise.mixing().astype(dtype)
