@@ -382,6 +382,13 @@ def intensity_weights(noise, start: float, tau: float, n: int, dtype):
     return jnp.sum(jnp.asarray(e, dtype) ** 2 * jnp.asarray(w / 2, dtype)[None, None, :], axis=-1)
 
 
+def step_exponents(scene: Scene, settings: PathIntegration, ops: StepOperator, start: float, n: int):
+    """``(n, 2)``: the exponents of the half-step kernels of ``n`` steps from ``start`` (``StepOperator.exponents``
+    of ``intensity_weights``); ``None`` for a stationary noise."""
+    weights = intensity_weights(scene.noise, start, settings.tau, n, ops.kernel.dtype)
+    return None if weights is None else ops.exponents(weights)
+
+
 def peak_weight(scene: Scene, tau: float) -> float:
     """The largest mean of ``e(t)^2`` over the half steps from 0 to the last saved time (1 for a stationary noise):
     sizes the grid and checks its resolution at the noise's strongest."""
@@ -411,15 +418,15 @@ def _transient(scene: Scene, settings: PathIntegration, extents, initial):
     zero = jnp.zeros((), dtype)
     carry = (p, zero, jnp.sum(edge * p))
 
-    def body(carry, intensity):
+    def body(carry, exponents):
         p, defect, leak = carry
-        p = ops.step(p, intensity)
+        p = ops.step(p, exponents)
         m = jnp.sum(weights * p)
         p = p / m
         return (p, defect + jnp.abs(1 - m), jnp.maximum(leak, jnp.sum(edge * p))), None
 
     steps = [int(round((t - start) / settings.tau)) for t in scene.save_at]
-    outs = saved_scan(body, carry, steps, intensity_weights(scene.noise, start, settings.tau, max(steps), dtype))
+    outs = saved_scan(body, carry, steps, step_exponents(scene, settings, ops, start, max(steps)))
     density, defect, leak = (jnp.stack(z) for z in zip(*outs, strict=True))
     nan = jnp.full(density.shape[:1], jnp.nan, dtype)
     none = jnp.zeros(density.shape[:1], dtype)

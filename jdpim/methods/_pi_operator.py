@@ -27,9 +27,10 @@ The images and weights do not depend on time: they are computed once per solve (
 differentiable in the model's parameters), and a step is a scatter-add plus two small matrix products.
 
 **Modulated noise** ``e(t) xi(t)`` (state-independent gains): the half-step kernels take the intensity
-``D e^2`` averaged over their half step (``step(p, weights)``), rebuilt inside the step from one sampled row
-(``kernel_at``: the kernel is then a Toeplitz matrix, so ``2 n_v - 1`` exponentials per half step, against
-the ``n_x n_v^2`` multiply-adds of applying it); the flow does not involve the noise and stays as built.
+``D e^2`` averaged over their half step, as exponents computed for all steps at once (``exponents``) and fed
+to the steps (``step(p, exponents)``), which rebuild their kernels from one sampled row (``kernel_of``: the
+kernel is a Toeplitz matrix, so ``2 n_v - 1`` exponentials per half step, against the ``n_x n_v^2``
+multiply-adds of applying it); the flow does not involve the noise and stays as built.
 """
 
 from __future__ import annotations
@@ -215,25 +216,25 @@ class StepOperator:
             return p @ kernel.T
         return jnp.einsum("ijk,ik->ij", kernel, p)
 
-    def kernel_at(self, weight):
-        """The half-step kernel ``(n_v, n_v)`` at the intensity ``D * weight`` (state-independent gains).
+    def exponents(self, weights):
+        """``z`` (shaped like ``weights``) of the half-step kernels at the intensities ``D * weights``
+        (state-independent gains; see ``node_exponent`` and ``kernel_of``)."""
+        return node_exponent((weights * self.variance - self.smoothing) / self.dv**2)
 
-        The kernel of a constant variance is Toeplitz, ``K_jk = row[j - k]``: one row over every node-to-node
-        distance, ``exp(-z k^2)`` normalised (as ``step_operator`` normalises), gathered; ``z`` makes its
-        variance on the nodes the half step's (``node_exponent``), also where the intensity is low.
-        """
+    def kernel_of(self, z):
+        """The half-step kernel ``(n_v, n_v)`` of exponent ``z``: the kernel of a constant variance is Toeplitz,
+        ``K_jk = row[j - k]``, so one row ``exp(-z k^2)`` over every node-to-node distance is normalised (as
+        ``step_operator`` normalises) and gathered."""
         n_v = self.kernel.shape[-1]
-        dtype = self.kernel.dtype
-        z = node_exponent((weight * self.variance - self.smoothing) / self.dv**2)
-        row = jnp.exp(-z * jnp.arange(-(n_v - 1), n_v, dtype=dtype) ** 2)
+        row = jnp.exp(-z * jnp.arange(-(n_v - 1), n_v, dtype=self.kernel.dtype) ** 2)
         return (row / jnp.sum(row))[_toeplitz(n_v)]
 
-    def step(self, p, weights=None):
-        """One step of ``p`` ``(n_x, n_v)``; ``weights`` ``(2,)``: the mean of ``e(t)^2`` over the step's first and
-        second half for a modulated noise (``None``: stationary, the kernel built with the operator)."""
-        if weights is None:
+    def step(self, p, exponents=None):
+        """One step of ``p`` ``(n_x, n_v)``; ``exponents`` ``(2,)``: the ``z`` of the two half-step kernels for a
+        modulated noise (``exponents`` of the mean ``e(t)^2`` over each half; ``None``: the operator's kernel)."""
+        if exponents is None:
             return self.diffuse(self.flow(self.diffuse(p)))
-        first, second = self.kernel_at(weights[0]), self.kernel_at(weights[1])
+        first, second = self.kernel_of(exponents[0]), self.kernel_of(exponents[1])
         return self.diffuse(self.flow(self.diffuse(p, first)), second)
 
 
@@ -243,7 +244,7 @@ ASYMPTOTE_BELOW = 1e-6  # node variances below which z = ln(2 / var) (the neares
 
 def node_exponent(var):
     r"""``z`` with which ``g_k = exp(-z k^2)``, normalised over the integers ``k``, has the variance ``var`` (in squared
-    spacings; ``var <= 0`` gives the identity's ``z``, a very large number).
+    spacings, any shape; ``var <= 0`` gives the identity's ``z``, a very large number).
 
     From ``GAUSSIAN_ABOVE`` up, the sampled Gaussian ``z = 1 / (2 var)``. Below about one spacing a sampled
     Gaussian's variance on the nodes falls short of its parameter (``2 exp(-1 / (2 var))`` as ``var -> 0``), so a
@@ -254,14 +255,16 @@ def node_exponent(var):
     dtype = jnp.result_type(var)
     v = jnp.clip(var, jnp.finfo(dtype).tiny, GAUSSIAN_ABOVE)
     mid = jnp.clip(v, ASYMPTOTE_BELOW, GAUSSIAN_ABOVE)  # Newton's range (clipped: no NaN in the unused branch)
-    k2 = jnp.arange(-24, 25, dtype=dtype) ** 2
+    k2 = jnp.reshape(jnp.arange(-24, 25, dtype=dtype) ** 2, (1,) * jnp.ndim(var) + (-1,))
 
-    def newton(z, _):
-        g = jnp.exp(-k2 * z)
-        m0, m2, m4 = jnp.sum(g), jnp.sum(k2 * g), jnp.sum(k2 * k2 * g)
-        return z + (jnp.log(m2 / m0) - jnp.log(mid)) / (m4 / m2 - m2 / m0), None
+    def moment(g, k):  # sum over the last axis of k2^k g
+        return jnp.sum(k2**k * g, axis=-1)
 
-    z, _ = jax.lax.scan(newton, jnp.where(mid < 0.5, jnp.log(2 / mid), 1 / (2 * mid)), None, length=5)
+    z = jnp.where(mid < 0.5, jnp.log(2 / mid), 1 / (2 * mid))
+    for _ in range(5):  # a fixed, small count: unrolled
+        g = jnp.exp(-k2 * z[..., None])
+        m0, m2, m4 = moment(g, 0), moment(g, 1), moment(g, 2)
+        z = z + (jnp.log(m2 / m0) - jnp.log(mid)) / (m4 / m2 - m2 / m0)
     z = jnp.where(v < ASYMPTOTE_BELOW, jnp.log(2.0) - jnp.log(v), z)
     return jnp.where(var >= GAUSSIAN_ABOVE, 1 / (2 * jnp.maximum(var, GAUSSIAN_ABOVE)), z)
 

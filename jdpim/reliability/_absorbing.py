@@ -25,12 +25,12 @@ from ..methods._path_integration import (
     PathIntegrationWarning,
     check_resolution,
     coarser,
-    intensity_weights,
     peak_weight,
     resolved,
     saved_scan,
     setup,
     start_density,
+    step_exponents,
     validate,
 )
 from ..methods._pi_operator import drift_and_diffusion, make_grid
@@ -178,19 +178,19 @@ def _survival(scene, settings: PathIntegration, extents, initial, keep):
     grid, ops, weights, edge = setup(scene, settings, extents)
     p0, start = start_density(scene, settings, grid, weights, initial)
     steps = [int(round((t - start) / settings.tau)) for t in scene.save_at]
-    intensity = intensity_weights(scene.noise, start, settings.tau, max(steps), grid.x.dtype)
+    exponents = step_exponents(scene, settings, ops, start, max(steps))
 
     def absorbed(keep):
-        def body(carry, w):
+        def body(carry, z):
             p, defect, leak = carry
             before = jnp.sum(weights * p)
-            p = ops.step(p, w)
+            p = ops.step(p, z)
             after = jnp.sum(weights * p)
             p = p * jnp.where(after > 0, before / after, 0.0) * keep
             return (p, defect + jnp.abs(before - after), jnp.maximum(leak, jnp.sum(edge * p))), None
 
         p = p0 * keep
-        outs = saved_scan(body, (p, jnp.zeros((), p.dtype), jnp.sum(edge * p)), steps, intensity)
+        outs = saved_scan(body, (p, jnp.zeros((), p.dtype), jnp.sum(edge * p)), steps, exponents)
         return tuple(jnp.stack(z) for z in zip(*[(jnp.sum(weights * p), d, e) for p, d, e in outs], strict=True))
 
     return jax.vmap(absorbed)(keep)
