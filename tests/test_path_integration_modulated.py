@@ -79,3 +79,25 @@ def test_modulated_noise_refusals():
     scene = jdpim.Scene(model, noise=NOISE, t_end=4.0, dt=0.1, save_at=(4.0,))
     with pytest.raises(ValueError, match="modulated noise needs state-independent gains"):
         jdpim.path_integration(scene, SETTINGS)
+
+
+@pytest.mark.slow
+def test_reference_oscillator_and_its_first_passage_against_monte_carlo():
+    """r = 0.98, alpha = gamma = 0.03 under Shinozuka-Sato modulated noise: second moments and the first passage of
+    x over 0.6 within 3 Monte Carlo standard errors (fixed seeds). docs/path_integration.md has the larger run."""
+    noise = jdpim.WhiteNoise(D=0.03, envelope=ENVELOPE)
+    model = jdpim.VibroImpactOscillator(alpha=0.03, gamma=0.03, r=0.98)
+    scene = jdpim.Scene(model, noise=noise, t_end=10.0, dt=0.05, save_at=(6.0, 10.0), dtype="float32")
+    settings = jdpim.PathIntegration(n_x=41, n_v=81, tau=0.1, t0=2.0, x_max=2.0, v_max=2.0)
+    pi = jdpim.path_integration(scene, settings)
+    mc = jdpim.solve(scene, jdpim.MonteCarlo(n_samples=2000, seed=5))
+    for t in scene.save_at:
+        for var in ("x", "v"):
+            s = np.asarray(mc.samples(var, t), float) ** 2
+            z = (float(pi.moment(var, 2, t)) - s.mean()) / (s.std(ddof=1) / np.sqrt(s.size))
+            assert abs(z) < 3, (t, var, z)
+    passage = [jdpim.first_passage(scene, "x", 0.6, m) for m in (settings, jdpim.MonteCarlo(n_samples=2000, seed=6))]
+    z = (np.asarray(passage[0].probability) - np.asarray(passage[1].probability)) / np.asarray(
+        passage[1].probability_stderr
+    )
+    assert np.all(np.abs(z) < 3), z

@@ -3,7 +3,8 @@ r"""Path integration: the transition density of a one-degree-of-freedom scene on
 ``jdpim.path_integration(scene)`` evolves the joint density ``p(x, v, t)`` of the scene's oscillator with
 the one-step operator of ``jdpim.methods._pi_operator`` (Strang splitting: half a Gaussian diffusion step in ``v``,
 the deterministic flow by semi-Lagrangian back-tracing with the impact law, another half diffusion step)
-and renormalises after every step, reporting the defect. ``stationary=True`` finds the fixed point of the
+and renormalises after every step, reporting the defect (a noise modulated by ``e(t)`` sets the kernels of
+every step, ``intensity_weights``). ``stationary=True`` finds the fixed point of the
 step by a Newton-Krylov solve (BiCGStab, GMRES where it stagnates; checked), differentiated implicitly
 (``jax.lax.custom_root``: one checked linear solve per tangent or cotangent, no back-propagation through
 the iterations).
@@ -54,7 +55,9 @@ class PathIntegration(AbstractMethod):
 
     Solves the Fokker-Planck equation of a one-degree-of-freedom scene ``x'' + g(x) + f(x, x') = h(x, x') . xi(t)``
     on ``x >= barrier`` with the impact law ``x'_+ = -r x'_-`` (white noise ``E[xi xi^T] = 2 D delta``,
-    Stratonovich gains) by a mass-conservative splitting step on a grid (see ``docs/path_integration.md``),
+    Stratonovich gains; modulated by the noise's envelope ``e(t)``, if any, for state-independent gains: each
+    half-step kernel then takes the mean of ``e^2`` over its half step) by a mass-conservative splitting step
+    on a grid (see ``docs/path_integration.md``),
     with renormalisation after each step (the defect is reported as ``GridResult.mass_defect``). The scene
     gives the physics: model, noise, start ``x0``/``v0`` (a point mass, see ``t0``), ``save_at`` (multiples of
     ``tau`` after the start) and ``dtype``; its ``dt``, excitation and impact settings are not used, and random
@@ -97,7 +100,7 @@ class PathIntegration(AbstractMethod):
             ``GridResult.pdf_error`` and ``l1_error`` estimate the discretisation error (about a tenth of
             the cost more; the coarse solve is not differentiated).
         stationary: solve for the stationary density instead (``t`` may then be left out everywhere, and
-            ``GridResult.times`` is ``(inf,)``).
+            ``GridResult.times`` is ``(inf,)``); refused for a modulated noise (it has none).
         initial: a density ``initial(x, v)`` at ``t = 0`` (vectorised over node arrays of shape
             ``(n_x, n_v)``, JAX-traceable) instead of the point-mass start; renormalised on the grid.
 
