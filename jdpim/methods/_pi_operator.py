@@ -187,7 +187,7 @@ class StepOperator:
     kernel: Any  # (n_v, n_v) or (n_x, n_v, n_v) half-step diffusion kernel [target, source]
     fold: Any  # (2 targets, ghost column -k, node v_j) -> start x, start v, weights x (4,), weights v (4,); or None
     order: int
-    variance: Any = None  # () half-step variance q tau of state-independent gains (for kernel_at); else None
+    variance: Any = None  # () half-step variance q tau of state-independent gains (for exponents); else None
     smoothing: Any = 0.0  # () the variance that deposition adds per half step (subtracted from the kernel's)
     dv: Any = None  # () the velocity spacing
 
