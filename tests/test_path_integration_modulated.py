@@ -79,6 +79,14 @@ def test_modulated_noise_refusals():
     scene = jdpim.Scene(model, noise=NOISE, t_end=4.0, dt=0.1, save_at=(4.0,))
     with pytest.raises(ValueError, match="modulated noise needs state-independent gains"):
         jdpim.path_integration(scene, SETTINGS)
+    spectrum = jdpim.EvolutionaryKanaiTajimi(omega_g=((0.0, 4.0), (12.0, 3.0)), zeta_g=0.4)
+    evolving = elastic(dtype="float32").replace(noise=jdpim.WhiteNoise(D=0.02, envelope=spectrum))
+    for question in (
+        lambda s: jdpim.path_integration(s, SETTINGS),
+        lambda s: jdpim.first_passage(s, "x", 0.5, SETTINGS),
+    ):
+        with pytest.raises(ValueError, match="^path integration takes white noise, modulated or not, not an evolution"):
+            question(evolving)
 
 
 @pytest.mark.slow

@@ -257,6 +257,12 @@ def validate(scene: Scene, settings: PathIntegration, initial, stationary: bool)
             "PathIntegration(stationary=True) (a stationary density)",
             "a modulated noise has none; use stationary=False",
         )
+    if scene.noise.spectrum is not None:
+        raise ValueError(
+            f"path integration takes white noise, modulated or not, not an evolutionary spectrum "
+            f"({scene.noise.envelope!r}): its steps assume one intensity for every frequency; use jdpim.DPIM or "
+            "jdpim.MonteCarlo(excitation=jdpim.SpectralRepresentation())"
+        )
     if scene.noise.envelope is not None and state_dependent(scene.model):
         raise ValueError(
             "path integration of a modulated noise needs state-independent gains (h=None): with gains h(x, v) every "
