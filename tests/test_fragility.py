@@ -8,7 +8,7 @@ import pytest
 from scipy import special
 
 import jdpim
-from jdpim.reliability._fragility import fit_lognormal, wilson_interval
+from jdpim.reliability._fragility import fit_lognormal, fit_p_value_of, wilson_interval
 
 LEVEL = 0.5
 FIT_AT = (0.8, 1.0, 1.25, 1.6, 2.0)  # P from about 0.1 to 0.9
@@ -69,7 +69,8 @@ def test_intensity_scales_the_ground_motion(scene, curve):
 
 def test_fit_of_synthetic_counts_and_its_standard_errors():
     """Counts drawn from a known lognormal curve: over 300 synthetic data sets the estimates' mean lies within 3
-    standard errors of the truth, and the mean observed-information standard error matches their spread to 15 %."""
+    standard errors of the truth, the mean observed-information standard error matches their spread to 15 %, and
+    the fit's chi-square p-value falls below 0.05 in 5 % of them (within 3 binomial standard errors)."""
     rng = np.random.default_rng(0)
     s, n, median, beta = np.array([0.5, 0.7, 1.0, 1.4, 2.0]), 200, 1.1, 0.5
     p = special.ndtr(np.log(s / median) / beta)
@@ -79,6 +80,10 @@ def test_fit_of_synthetic_counts_and_its_standard_errors():
     spread = estimates.std(axis=0, ddof=1)
     assert np.all(np.abs(estimates.mean(axis=0) - [median, beta]) < 3.0 * spread / np.sqrt(300))
     np.testing.assert_allclose(stderr.mean(axis=0), spread, rtol=0.15)
+    counts = [rng.binomial(n, p) for _ in range(300)]
+    values = np.array([fit_p_value_of(s, k, n, *fit_lognormal(s, k, n)[:2]) for k in counts])
+    assert abs(np.mean(values < 0.05) - 0.05) < 3.0 * np.sqrt(0.05 * 0.95 / 300)
+    assert np.isnan(fit_p_value_of(s[:2], [1, 5], n, median, beta))
 
 
 def test_wilson_interval():
@@ -130,6 +135,17 @@ def test_subset_simulation_fit_against_direct_monte_carlo(scene, tail, direct):
     assert np.all(np.abs(z) < 3.0), np.round(z, 2)
     assert 0.0 < middle.beta_stderr < 0.2 * middle.beta and 0.0 < middle.median_stderr < 0.1 * middle.median
     assert float(middle.fit_p_value) > 0.01 and float(tail.fit_p_value) < 1e-3
+
+
+def test_subset_simulation_short_of_the_level(scene):
+    """Two levels cannot reach 1e-5: no sample passes the level at s = 0.35, whose estimate is 0 with no error,
+    no upper bound and no weight, while the fit stands on the others."""
+    method = jdpim.SubsetSimulation(n_per_level=500, seed=0, max_levels=2)
+    with pytest.warns(jdpim.FragilityWarning, match=r"no sample above level=0.5 at the intensities \[0.35\]"):
+        fr = jdpim.fragility(scene, "x", LEVEL, (0.35, 0.9, 1.4), method)
+    assert float(fr.probability[0]) == 0.0 and float(fr.lower[0]) == 0.0
+    assert np.isnan(float(fr.upper[0])) and np.isnan(float(fr.probability_stderr[0]))
+    assert fr.n_evaluations.tolist() == [1000, 500, 500] and np.isfinite(float(fr.median))
 
 
 def test_saved_and_loaded(tail, tmp_path):

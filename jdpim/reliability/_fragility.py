@@ -175,6 +175,19 @@ def fit_lognormal(intensities, counts, n) -> tuple:
     return float(np.exp(-a / b)), float(1.0 / b), covariance
 
 
+def fit_p_value_of(intensities, counts, n, median: float, beta: float) -> float:
+    """The p-value of Pearson's chi-square ``sum_i (k_i - n_i P_i)^2 / (n_i P_i (1 - P_i))`` of the lognormal
+    ``P_i = Phi(ln(s_i / median) / beta)`` against the counts ``k_i`` of ``n_i``, on ``I - 2`` degrees of freedom
+    (two fitted parameters); ``nan`` for ``I <= 2``."""
+    eta = np.log(np.asarray(intensities, float) / median) / beta
+    if eta.size <= 2:
+        return np.nan
+    k, n = np.asarray(counts, float), np.broadcast_to(np.asarray(n, float), eta.shape)
+    p = special.ndtr(eta)
+    chi_square = np.sum(np.square(k - n * p) / (n * p * special.ndtr(-eta)))  # 1 - P without cancellation
+    return float(stats.chi2.sf(chi_square, eta.size - 2))
+
+
 def _binomial(p, n: int, confidence: float) -> tuple:
     """``(p, stderr, lower, upper, counts, sizes)`` of Monte Carlo proportions ``p`` of ``n`` equally weighted
     paths: ``k / n`` of the counts ``k = p n`` (rounded), ``sqrt(p (1 - p) / n)``, the Wilson interval, ``k``,
@@ -228,23 +241,29 @@ def fragility(
 
     At the intensity ``s`` the scene's noise intensity ``D`` becomes ``D (s / reference)^2`` (the ground motion
     ``s / reference`` times the scene's; a harmonic force of :func:`jdpim.harmonic` is not scaled). The
-    probability at each intensity is :func:`jdpim.first_passage` by Monte Carlo at the last saved time ``T``,
-    intensity ``i`` on the seed ``method.seed + i`` (independent counts); the Wilson interval brackets it, and
-    ``P(s) = Phi(ln(s / median) / beta)`` is fitted to all counts by maximum likelihood.
+    probability at each intensity is :func:`jdpim.first_passage` by ``method`` at the last saved time ``T``,
+    intensity ``i`` on the seed ``method.seed + i`` (independent estimates); a Wilson interval (binomial counts) or
+    a lognormal one (subset simulation above level 0) brackets it, and ``P(s) = Phi(ln(s / median) / beta)`` is
+    fitted to all of them by maximum likelihood (subset simulation's estimates as counts of their effective sample
+    sizes ``p (1 - p) / stderr^2``; module docstring).
 
     Args:
         scene: the physics; its noise intensity ``D`` must be a concrete number.
         var: a coordinate name or a function of the state (as for :func:`jdpim.first_passage`).
         level: the demand level (one number).
         intensities: ``(I,)``, ``I >= 2`` increasing positive intensity measures.
-        method: ``jdpim.MonteCarlo(...)``: ``n_samples`` paths at every intensity.
+        method: ``jdpim.MonteCarlo(...)``: ``n_samples`` paths at every intensity; or
+            ``jdpim.SubsetSimulation(...)`` for small probabilities (down to ``p0^max_levels``), whose cost grows
+            with ``ln(1 / P)`` instead of ``1 / P``.
         reference: the intensity measure of the scene as given (> 0): for instance its peak ground acceleration
             in m/s^2, to give ``intensities`` in m/s^2; 1 (the default) makes ``s`` the scale factor itself.
         confidence: the level of the intervals, in (0, 1).
 
     Returns:
         :class:`Fragility`; its ``median``, ``beta`` and their standard errors are ``nan`` (with a
-        :class:`FragilityWarning`) where the counts are separated and the fit does not exist.
+        :class:`FragilityWarning`) where the counts are separated and the fit does not exist. Subset simulation
+        that finds no sample above ``level`` within ``max_levels`` gives ``p = 0`` there, left out of the fit, with
+        a :class:`FragilityWarning`.
 
     Examples:
         >>> import jdpim
@@ -300,7 +319,6 @@ def fragility(
             )
     kept = sizes > 0
     fit = fit_lognormal(s[kept], counts[kept], sizes[kept])
-    fit_p_value = np.nan
     if fit is None:
         warnings.warn(
             f"{data} are separated (no intensity with an exceedance lies below one without): the lognormal fit does "
@@ -308,14 +326,10 @@ def fragility(
             FragilityWarning,
             stacklevel=2,
         )
-        median, beta, covariance = np.nan, np.nan, np.full((2, 2), np.nan)
+        median, beta, covariance, fit_p_value = np.nan, np.nan, np.full((2, 2), np.nan), np.nan
     else:
         median, beta, covariance = fit
-        if kept.sum() > 2:
-            fitted = special.ndtr(np.log(s[kept] / median) / beta)
-            k, size = counts[kept], sizes[kept]
-            chi_square = np.sum(np.square(k - size * fitted) / (size * fitted * (1.0 - fitted)))
-            fit_p_value = stats.chi2.sf(chi_square, kept.sum() - 2)
+        fit_p_value = fit_p_value_of(s[kept], counts[kept], sizes[kept], median, beta)
     return Fragility(
         times=(scene.save_at[-1],),
         intensities=s,
