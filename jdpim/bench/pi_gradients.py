@@ -186,28 +186,50 @@ PROTOCOL = (
 )
 
 
+def _worst(rows: list, field: str = "max_rel_diff") -> str:
+    """The largest ``field`` over ``rows`` ("not finite" if any is missing, "-" if none has it)."""
+    values = [r[field] for r in rows if field != "max_rel_diff_central" or r["central"] is not None]
+    if not values:
+        return "-"
+    return "not finite" if any(v is None for v in values) else f"{max(values):.1e}"
+
+
 def _write(out: pathlib.Path, stem: str, plan: Plan, rows: list) -> None:
     flags = os.environ.get("XLA_FLAGS")
     rec = record(PROTOCOL + (f"; XLA_FLAGS={flags}" if flags else ""))
-    settings = {"alpha": ALPHA, "n_x": plan.n_x, "n_v": plan.n_v}
+    settings = {"alpha": ALPHA, "n_x": plan.n_x, "n_v": plan.n_v, "h": H}
     (out / f"{stem}.json").write_text(json.dumps({"record": rec, "settings": settings, "rows": rows}, indent=1))
-    worst = max((r["max_rel_diff"] for r in rows if r["max_rel_diff"] is not None), default=float("nan"))
     lines = [
         f"# Path-integration derivatives: grad against jacfwd ({plan.n_x} x {plan.n_v} nodes)",
         "",
         *record_lines(rec),
         f"f = p_x(0.3) + p_x(0.8), stationary, alpha = {ALPHA}, float64; largest relative difference over "
-        f"(alpha, gamma if > 0, r, D). Cells: {len(rows)}, not finite: {sum(not r['finite'] for r in rows)}, "
-        f"worst: {worst:.1e}.",
+        f"(alpha, gamma if > 0, r, D). Cells run: {len(rows)} of {len(plan.cells)} (in the plan's order), not "
+        f"finite: {sum(not r['finite'] for r in rows)}, worst grad against jacfwd: {_worst(rows)}; central "
+        f"differences (step {H:g}) against jacfwd in {sum(r['central'] is not None for r in rows)} cells, worst: "
+        f"{_worst(rows, 'max_rel_diff_central')}.",
         "",
-        "| gamma | D | r | extents | x_max = v_max | order | max rel. diff | warnings |",
-        "|---|---|---|---|---|---|---|---|",
+        "Worst cell per value of each axis (cells run):",
+        "",
+        "| axis | value | cells | worst grad vs jacfwd |",
+        "|---|---|---|---|",
+    ]
+    for name, values in zip(("gamma", "D", "r", "extents", "order"), AXES, strict=True):
+        for value in values:
+            some = [r for r in rows if r[name] == value]
+            shown = value if isinstance(value, str) else f"{value:g}"
+            lines.append(f"| {name} | {shown} | {len(some)} | {_worst(some)} |")
+    lines += [
+        "",
+        "| gamma | D | r | extents | x_max = v_max | order | grad vs jacfwd | central vs jacfwd | warnings |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         diff = "not finite" if r["max_rel_diff"] is None else f"{r['max_rel_diff']:.0e}"
+        fd = "-" if r["central"] is None else _worst([r], "max_rel_diff_central")
         warned = "; ".join(r["warnings"]) or "-"
         lines.append(
             f"| {r['gamma']:g} | {r['D']:g} | {r['r']:g} | {r['extents']} | {r['x_max']:.2f} | {r['order']} | "
-            f"{diff} | {warned} |"
+            f"{diff} | {fd} | {warned} |"
         )
     (out / f"{stem}.md").write_text("\n".join(lines) + "\n")
