@@ -142,3 +142,18 @@ def test_a_linear_solve_that_does_not_converge_gives_nan_and_warns():
     assert any("linear solve stopped" in m for m in messages), messages
     assert any("non-finite nodal densities" in m for m in messages), messages
     assert int(res.n_nonfinite()[0]) > 0
+
+
+def test_gradient_matrix_runs_every_cell_once_covering_every_value_and_pair_early():
+    """``python -m jdpim.bench pi-gradients`` runs its 72 cells so that a run cut short covers the matrix."""
+    import itertools
+
+    from jdpim.bench.pi_gradients import AXES, EXTRA, FULL
+
+    cells = FULL.cells[: -len(EXTRA)]
+    assert sorted(cells, key=str) == sorted(itertools.product(*AXES), key=str)
+    assert FULL.cells[-len(EXTRA) :] == EXTRA
+    for i, values in enumerate(AXES):
+        assert {c[i] for c in cells[:4]} == set(values)
+    pairs = [set(itertools.combinations(enumerate(c), 2)) for c in cells]
+    assert set().union(*pairs[:9]) == set().union(*pairs)

@@ -81,6 +81,10 @@ def main(argv=None, *, from_program=None) -> int:
         action="store_true",
         help="18 cells (every axis value, and the reported one), 81 x 161 nodes (else 73 cells, 121 x 241)",
     )
+    pig.add_argument(
+        "--central", type=int, default=3, help="cells (the first) that also get central differences (default 3)"
+    )
+    pig.add_argument("--resume", action="store_true", help="keep the cells already in --out's record, run the others")
     pig.add_argument("--out", type=pathlib.Path, default=pathlib.Path("jdpim_out/bench"))
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
     if (argv is None if from_program is None else from_program) or args.cpu_devices is not None:
@@ -148,7 +152,13 @@ def main(argv=None, *, from_program=None) -> int:
     elif args.command == "pi-gradients":
         from .pi_gradients import run_pi_gradients
 
-        files = run_pi_gradients(args.out, quick=args.quick, log=lambda s: print(s, flush=True))
+        files = run_pi_gradients(
+            args.out,
+            quick=args.quick,
+            central=args.central,
+            resume=args.resume,
+            log=lambda s: print(s, flush=True),
+        )
     else:
         from .budget import run_budget
 
