@@ -155,7 +155,7 @@ def test_refusals():
         jdpim.exact.lyapunov_covariance(model, shaped, [1.0])
     with pytest.raises(ValueError, match="no intensity D e"):
         shaped.intensity(1.0)
-    with pytest.raises(ValueError, match="path integration .* assumes a constant noise intensity"):
+    with pytest.raises(ValueError, match="^path integration takes white noise, modulated or not, not an evolutionary"):
         jdpim.solve(scene, jdpim.PathIntegration(n_x=21, n_v=21))
     with pytest.raises(ValueError, match=r"^cutoff must lie in \[0.5, inf\)"):
         jdpim.exact.evolutionary_covariance(model, shaped, [1.0], dw=0.5, cutoff=0.1)
