@@ -3,6 +3,7 @@ smaller chunks use, both as an accelerator runs it (without branches) and as a C
 steps where many paths cross): the threshold is lowered so that small chunks take it here."""
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -67,6 +68,23 @@ def test_wide_resolution_gives_the_lane_states(name, branch_free, monkeypatch, l
     lanes = lane_states[name]
     assert np.all(np.isfinite(wide))
     np.testing.assert_allclose(wide, lanes, rtol=0, atol=1e-5)
+
+
+@pytest.mark.parametrize("name", ["all cross at once", "impact damper"])
+def test_compact_batch_gives_the_lane_states_bit_for_bit(name, monkeypatch, lane_states):
+    """The steps where few paths cross (at most ``compact_rows``: 32 of 256) are served by one compact batch, the
+    crowded ones (every path in the first step of the first scene) by the lanes: the states equal those of lanes in
+    every step bit for bit, since every row is resolved by the same function whichever batch serves it."""
+    scene = SCENES[name]()
+
+    def by_lanes_only(eng, packing, columns, y1, todo):
+        end = batches.by_lanes(eng, packing, columns, jnp.concatenate(y1, axis=1), todo)
+        return end[:, : y1[0].shape[1]], end[:, y1[0].shape[1] :]
+
+    if name not in lane_states:
+        lane_states[name] = _states(scene, 256, False, monkeypatch)
+    monkeypatch.setattr(batches, "compact", by_lanes_only)
+    np.testing.assert_array_equal(_states(scene, 256, False, monkeypatch), lane_states[name])
 
 
 def test_reverse_mode_through_the_wide_resolution(monkeypatch):

@@ -1,25 +1,30 @@
 r"""The resolution of a step's crossings: the crossing paths gathered in small batches, resolved and scattered back.
 
-The paths are split into ``cap`` lanes of ``G = ceil(n / cap)`` (``cap``: :func:`batch_rows`, ``ceil(n / 64)``), and
-a batch takes the first crossing path of every lane that has one, gathered in one piece (every per-path input packed
-in the columns of one array, :func:`pack`), resolves up to ``max_impacts`` impacts of each on these few rows
-(:func:`resolve_batch`), and scatters their end states back (:func:`one_batch`). Every loop that runs on the batch
-touches only its small arrays, and every loop level over batches has a few operations in a chain, so XLA's CPU runtime
-runs them inline rather than handing them to its thread pool (which costs more than the work).
+A CPU serves a step by how many paths cross in it (a ``lax.switch``, cheap there): none, nothing; up to
+:func:`compact_rows` (``n / 128``, at least 32), one compact batch (:func:`compact`): their indices in order
+(``jnp.nonzero`` of a fixed size), their rows gathered column by column, up to ``max_impacts`` impacts of each
+resolved on these few rows (:func:`resolve_batch`) and their end states scattered back, so that a step costs the
+resolution of one small batch whatever the chunk's size; more, the crowded steps, as below (the lanes, or the wide
+batch first), which serve any number of crossings. Every row is resolved by the same function in every batch, so a
+path's end state does not depend on the batch that serves it.
 
-``G`` batches serve any step; ``2**depth >= G`` of them run as a binary tree of ``fori_loop`` of two iterations
-(static trip counts, so reverse-mode AD works) whose subtrees are skipped once no path is pending (:func:`batches`):
-the resolution is traced once, and a step whose crossings fit in one batch passes ``depth`` skipped subtrees.
+The lanes: the paths are split into ``cap`` lanes of ``G = ceil(n / cap)`` (``cap``: :func:`batch_rows`,
+``ceil(n / 64)``), and a batch takes the first crossing path of every lane that has one, gathered in one piece (every
+per-path input packed in the columns of one array, :func:`pack`), resolves them and scatters their end states back
+(:func:`one_batch`). Every loop that runs on the batch touches only its small arrays, and every loop level over
+batches has a few operations in a chain, so XLA's CPU runtime runs them inline rather than handing them to its thread
+pool (which costs more than the work). ``G`` batches serve any step; ``2**depth >= G`` of them run as a binary tree of
+``fori_loop`` of two iterations (static trip counts, so reverse-mode AD works) whose subtrees are skipped once no path
+is pending (:func:`batches`).
 
-A chunk of ``WIDE_CHUNK`` paths or more (an accelerator's; a CPU's where ``default_chunk_size`` makes it so) is served
-by a wide batch first (:func:`wide_first`): up to ``cap`` (``ceil(n / 16)``) crossing paths, taken in order
-(``jnp.nonzero``) and gathered column by column, every round on every row; lanes of ``G = 16`` paths serve the
-crossings beyond it. On an accelerator that runs in every step without branches: every branch costs a read of its
-predicate by the host and kernels of its own, which set the cost of a step (docs/speed.md). There the paths at rest on
-the barrier (one degree of freedom) are served with the crossing paths, and their batch restarts them where the force
-pulls them off. On a CPU a branch is cheap, and a wide batch costs as much whether 10 or 800 paths cross: only a step
-where more than ``n / CROWDED_AT`` paths cross takes it (the impact damper's rattling), any other the lanes of 64 (the
-reference scene's few crossings).
+A chunk of ``WIDE_CHUNK`` paths or more (an accelerator's; a CPU's where ``default_chunk_size`` makes it so) has a
+wide batch (:func:`wide_first`): up to ``cap`` (``ceil(n / 16)``) crossing paths, taken in order and gathered column
+by column, every round on every row; lanes of ``G = 16`` paths serve the crossings beyond it. On an accelerator that
+runs in every step without branches: every branch costs a read of its predicate by the host and kernels of its own,
+which set the cost of a step (docs/speed.md). There the paths at rest on the barrier (one degree of freedom) are
+served with the crossing paths, and their batch restarts them where the force pulls them off. On a CPU the wide batch
+serves the crowded steps (more than ``n / CROWDED_AT`` crossings: the impact damper's rattling), the lanes those of a
+smaller chunk.
 """
 
 from __future__ import annotations
@@ -37,13 +42,16 @@ from .one_path import Engine, each, from_rest, per_path, resolve, resolve_event,
 
 # chunks of at least this many paths resolve their crossings in a wide batch first, of a WIDE_SHARE-th of the
 # paths: an accelerator's chunks in every step, without branches; a CPU's (where default_chunk_size makes them so)
-# in the steps where more than a CROWDED_AT-th of the paths cross, the others by the lanes (docs/mdof.md)
+# in the steps where more than a CROWDED_AT-th of the paths cross. On a CPU a step with at most a CROWDED_AT-th of
+# the paths (at least COMPACT_ROWS: the crossings of a small chunk's rattling step) crossing is served by one compact
+# batch, a crowded step of a smaller chunk by the lanes (docs/mdof.md)
 WIDE_CHUNK = 8192
 WIDE_SHARE = 16
 CROWDED_AT = 128
 # a batch of more rows than this has a multiple of them: XLA's CPU code for a batch of an odd number of rows is
 # markedly slower per step
 BATCH_ROWS = 8
+COMPACT_ROWS = 32
 
 
 def branch_free(n: int) -> bool:
@@ -187,6 +195,23 @@ def wide_first(eng: Engine, packing: Packing, columns, end, todo):
     return batches(eng, packing, first, wide=True)[1]
 
 
+def compact_rows(n: int) -> int:
+    """The most crossings of a step in a chunk of ``n`` paths that one compact batch serves (:func:`compact`):
+    ``n // CROWDED_AT``, at least ``COMPACT_ROWS`` (at most ``n``). Its array has that many rows rounded up to a
+    multiple of ``BATCH_ROWS``."""
+    return min(n, max(COMPACT_ROWS, n // CROWDED_AT))
+
+
+def compact(eng: Engine, packing: Packing, columns, y1, todo):
+    """``y1`` with the pending paths (at most :func:`compact_rows`) resolved in one batch: their indices in order
+    (``jnp.nonzero``), their rows gathered column by column, resolved and scattered back into ``q`` and ``v``."""
+    n, d = y1[0].shape
+    rows = min(n, -(-compact_rows(n) // BATCH_ROWS) * BATCH_ROWS)
+    idx = jnp.nonzero(todo, size=rows, fill_value=n)[0]
+    end = resolve_batch(eng, packing, jnp.concatenate([c.at[idx].get(mode="clip") for c in columns], axis=1), False)
+    return tuple(y.at[idx].set(part, mode="drop") for y, part in zip(y1, (end[:, :d], end[:, d:]), strict=True))
+
+
 def resolve_crossings(eng: Engine, y0, tau0, y1, e, rand, h, held=None, force=None, departs=None):
     """Every located impact of the step: ``y1`` with each crossing path's impacts resolved (with ``held``, the
     constraint each path is held on, ``force``, its stage forces, and ``departs``, whether it lets go inside the
@@ -194,15 +219,17 @@ def resolve_crossings(eng: Engine, y0, tau0, y1, e, rand, h, held=None, force=No
     n, d = y0[0].shape
     wide, unbranched = n >= WIDE_CHUNK, branch_free(n)
     columns, packing = pack(eng, y0, tau0, y1, e, rand, h, held, force)
-    lanes, first = (functools.partial(f, eng, packing, columns) for f in (by_lanes, wide_first))
     todo = each(to_locate, eng)(y0, y1, rand) if held is None else each(to_locate, eng)(y0, y1, rand, held) | departs
     if eng.sticking and unbranched:
         todo = todo | each(rests, eng)(*y0, rand)
-    end = jnp.concatenate(y1, axis=1)
-    if not wide:
-        end = jax.lax.cond(jnp.any(todo), lanes, lambda end, _: end, end, todo)
-    elif unbranched:
-        end = first(end, todo)
-    else:  # a CPU: a branch is cheap, no host reads its predicate from an accelerator's memory
-        end = jax.lax.cond(jnp.sum(todo) > n // CROWDED_AT, first, lanes, end, todo)
-    return end[:, :d], end[:, d:]
+    if unbranched:
+        end = wide_first(eng, packing, columns, jnp.concatenate(y1, axis=1), todo)
+        return end[:, :d], end[:, d:]
+
+    def crowded(y1, todo):  # a CPU: a branch is cheap, no host reads its predicate from an accelerator's memory
+        end = (wide_first if wide else by_lanes)(eng, packing, columns, jnp.concatenate(y1, axis=1), todo)
+        return end[:, :d], end[:, d:]
+
+    count = jnp.sum(todo, dtype=jnp.int32)
+    served = (lambda y1, _: y1, functools.partial(compact, eng, packing, columns), crowded)
+    return jax.lax.switch((count > 0).astype(jnp.int32) + (count > compact_rows(n)), served, y1, todo)
