@@ -1,9 +1,8 @@
-"""The wide resolution of large chunks (``WIDE_CHUNK`` paths or more) gives the states of the lane resolution that
+"""The wide resolution of large chunks (``WIDE_CHUNK`` paths or more) gives the states of the compact batches that
 smaller chunks use, both as an accelerator runs it (without branches) and as a CPU does (a wide batch only in the
 steps where many paths cross): the threshold is lowered so that small chunks take it here."""
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -71,19 +70,15 @@ def test_wide_resolution_gives_the_lane_states(name, branch_free, monkeypatch, l
 
 
 @pytest.mark.parametrize("name", ["all cross at once", "impact damper"])
-def test_compact_batch_gives_the_lane_states_bit_for_bit(name, monkeypatch, lane_states):
-    """The steps where few paths cross (at most ``compact_rows``: 32 of 256) are served by one compact batch, the
-    crowded ones (every path in the first step of the first scene) by the lanes: the states equal those of lanes in
-    every step bit for bit, since every row is resolved by the same function whichever batch serves it."""
+def test_compact_batches_give_the_same_states_whatever_their_rows(name, monkeypatch, lane_states):
+    """A chunk's crossing paths go through compact batches of ``compact_rows`` rows (32 of 256 paths), as many as
+    a step needs (8 in the first step of the first scene, where every path crosses): batches of 8 rows, more of them
+    in more steps, give the same states bit for bit, since every row is resolved by the same function whichever
+    batch serves it."""
     scene = SCENES[name]()
-
-    def by_lanes_only(eng, packing, columns, y1, todo):
-        end = batches.by_lanes(eng, packing, columns, jnp.concatenate(y1, axis=1), todo)
-        return end[:, : y1[0].shape[1]], end[:, y1[0].shape[1] :]
-
     if name not in lane_states:
         lane_states[name] = _states(scene, 256, False, monkeypatch)
-    monkeypatch.setattr(batches, "compact", by_lanes_only)
+    monkeypatch.setattr(batches, "compact_rows", lambda n: 8)
     np.testing.assert_array_equal(_states(scene, 256, False, monkeypatch), lane_states[name])
 
 
@@ -108,10 +103,12 @@ def test_reverse_mode_through_the_wide_resolution(monkeypatch):
     np.testing.assert_allclose(float(second_moment(0.98)[1]), float(central), rtol=2e-3)
 
 
-@pytest.mark.parametrize(
-    "n, wide, rows",
-    [(14286, True, 896), (16384, True, 1024), (8192, True, 512), (14272, False, 224), (512, False, 8), (100, False, 2)],
-)
-def test_batch_rows_are_a_multiple_of_eight_above_it(n, wide, rows):
-    """Batches above ``BATCH_ROWS`` rows are rounded up to a multiple of it (odd ones ran 2x slower on a CPU)."""
-    assert batches.batch_rows(n, wide) == rows
+@pytest.mark.parametrize("n, rows", [(14286, 896), (16384, 1024), (8192, 512), (100, 7), (8, 1)])
+def test_batch_rows_are_a_multiple_of_eight_above_it(n, rows):
+    """Wide batches above ``BATCH_ROWS`` rows are rounded up to a multiple of it (odd ones ran 2x slower on a CPU)."""
+    assert batches.batch_rows(n) == rows
+
+
+@pytest.mark.parametrize("n, rows", [(10_000, 80), (14_286, 112), (5000, 40), (512, 32), (20, 20)])
+def test_compact_rows_are_a_128th_of_the_chunk_at_least_32(n, rows):
+    assert batches.compact_rows(n) == rows

@@ -50,9 +50,9 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
     (or one ``(n, 3, m)`` array).
 
     ``path_model(rand)`` builds one path's model from its random-parameter vector. Impacts are resolved
-    on the crossing paths only, gathered in small batches, resolved and scattered back: on a CPU one compact
-    batch of up to ``n / 128`` of them (at least 32) where no more cross, else batches of up to ``ceil(n / 64)``
-    (``ceil(n / 16)`` in chunks of ``WIDE_CHUNK`` paths or more; see :mod:`.batches`). With ``substeps``
+    on the crossing paths only, gathered in small batches, resolved and scattered back: compact batches of up to
+    ``n / 128`` of them (at least 32), or in chunks of ``WIDE_CHUNK`` paths or more a first batch of up to
+    ``ceil(n / 16)`` (see :mod:`.batches`). With ``substeps``
     (and a model that may be stiff) each path that needs it takes the step as sub-steps of its own (see
     :class:`Substeps`).
     """
