@@ -32,10 +32,10 @@ state is ``q``, ``v`` of shape ``(d,)``; its model's unilateral constraints ``c_
 Only the crossing paths do the impact work, gathered into small batches, each path's impacts resolved on the
 batch's small arrays and scattered back; the loops have static trip counts and skip their iterations (``lax.cond``)
 once no path is pending, so the resolution is traced once whatever ``max_impacts``, and a step without any crossing
-skips all of it. A chunk of fewer than ``WIDE_CHUNK`` paths takes compact batches of up to ``n / 128`` crossing
-paths (at least 32), in order, until none is left. A chunk of ``WIDE_CHUNK`` paths or more has a first batch of up
+skips all of it. Compact batches of up to ``ceil(n / 64)`` crossing paths, in order, serve a step until none is
+left. A chunk of ``WIDE_CHUNK`` paths or more has a first batch of up
 to ``n / 16`` crossing paths: an accelerator's (where every branch costs a read by the host) in every step without
-branches, a CPU's in the steps where more than ``n / 128`` paths cross (one compact batch in the others). The
+branches, a CPU's in the steps where more than ``n / 128`` paths cross (compact batches in the others). The
 ``"mirror"`` method is the first-order "flip after the step" rule, kept for comparison.
 
 The parts, one module each: :mod:`.settings` (the static settings :class:`ImpactRule` and :class:`Substeps`),

@@ -1,12 +1,14 @@
 r"""The resolution of a step's crossings: the crossing paths gathered in small batches, resolved and scattered back.
 
-A compact batch (:func:`compact`) takes up to :func:`compact_rows` (``n / 128``, at least 32) pending paths in order
-(``jnp.nonzero`` of a fixed size), gathers their rows column by column, resolves up to ``max_impacts`` impacts of
-each on these few rows (:func:`resolve_batch`) and scatters their end states back into ``q`` and ``v``. Every loop
-that runs on the batch touches only its small arrays. A chunk of fewer than ``WIDE_CHUNK`` paths takes compact
-batches until none is pending: ``2**depth`` of them serve any step, as a binary tree of ``fori_loop`` of two
-iterations (static trip counts, so reverse-mode AD works) whose subtrees are skipped once no path is pending
-(:func:`tree`); the resolution is traced once, and a step whose crossings fit in one batch runs one.
+A compact batch (:func:`compact`) takes up to :func:`compact_rows` (``ceil(n / 64)``) pending paths in order,
+the first two of each run of 32 (:func:`pending_in_order`: reductions, where ``jnp.nonzero`` over every path costs
+more than the resolution), gathers their rows column by column, resolves up to ``max_impacts`` impacts of each on
+these few rows (:func:`resolve_batch`) and scatters their end states back into ``q`` and ``v``. Every loop that runs
+on the batch touches only its small arrays. Compact batches run until none is pending: ``2**depth`` of them serve
+any step (:func:`compact_depth`), as a binary tree of ``fori_loop`` of two iterations (static trip counts, so
+reverse-mode AD works) whose subtrees are skipped once no path is pending (:func:`tree`); the resolution is traced
+once, and a step whose crossings fit in one batch runs one. They serve every step of a chunk of fewer than
+``WIDE_CHUNK`` paths.
 
 A chunk of ``WIDE_CHUNK`` paths or more (an accelerator's; a CPU's where ``default_chunk_size`` makes it so) has a
 wide batch (:func:`wide_first`): up to ``cap`` (``ceil(n / 16)``, :func:`batch_rows`) crossing paths, taken in
@@ -16,12 +18,12 @@ accelerator that runs in every step without branches: every branch costs a read 
 kernels of its own, which set the cost of a step (docs/speed.md). There the paths at rest on the barrier (one degree
 of freedom) are served with the crossing paths, and their batch restarts them where the force pulls them off. On a
 CPU a branch is cheap, and a wide batch costs as much whether 10 or 800 paths cross: a step is served by how many
-cross (a ``lax.switch``): none, nothing; up to ``n / CROWDED_AT``, one compact batch; more (the impact damper's
+cross (a ``lax.switch``): none, nothing; up to ``n / CROWDED_AT``, compact batches; more (the impact damper's
 rattling), the wide batch first.
 
-A compact batch and a lane resolve each row with the same function (rounds under ``lax.cond``), so a path's end
-state does not depend on which of them serves it; the wide batch runs every round on every row without branches,
-which XLA fuses differently, and agrees with them to rounding.
+A compact batch resolves each row by the same function whatever the batch's rows (rounds under ``lax.cond``), so a
+path's end state does not depend on which batch serves it; the wide batch runs every round on every row without
+branches, which XLA fuses differently, and agrees with it to rounding.
 """
 
 from __future__ import annotations
@@ -39,15 +41,15 @@ from .one_path import Engine, each, from_rest, per_path, resolve, resolve_event,
 
 # chunks of at least this many paths resolve their crossings in a wide batch first, of a WIDE_SHARE-th of the
 # paths: an accelerator's chunks in every step, without branches; a CPU's (where default_chunk_size makes them so)
-# in the steps where more than a CROWDED_AT-th of the paths cross, the others by one compact batch (docs/mdof.md).
-# A compact batch has a CROWDED_AT-th of the chunk's paths, at least COMPACT_ROWS (a small chunk's rattling step)
+# in the steps where more than a CROWDED_AT-th of the paths cross, the others by compact batches (docs/mdof.md)
 WIDE_CHUNK = 8192
 WIDE_SHARE = 16
 CROWDED_AT = 128
 # a batch of more rows than this has a multiple of them: XLA's CPU code for a batch of an odd number of rows is
 # markedly slower per step
 BATCH_ROWS = 8
-COMPACT_ROWS = 32
+# a compact batch takes the first two pending paths of each run of this many paths
+PICK_RUN = 32
 
 
 def branch_free(n: int) -> bool:
@@ -192,22 +194,47 @@ def wide_first(eng: Engine, packing: Packing, columns, end, todo):
 
 
 def compact_rows(n: int) -> int:
-    """Rows of a compact batch (:func:`compact`) in a chunk of ``n`` paths: ``n // CROWDED_AT``, at least
-    ``COMPACT_ROWS`` (at most ``n``), rounded up to a multiple of ``BATCH_ROWS``."""
-    return min(n, -(-max(COMPACT_ROWS, n // CROWDED_AT) // BATCH_ROWS) * BATCH_ROWS)
+    """Rows of a compact batch (:func:`compact`) in a chunk of ``n`` paths: ``ceil(n / 64)``, rounded up to a multiple
+    of ``BATCH_ROWS`` above it (XLA's CPU code is markedly slower per step for batches of an odd number of rows, and a
+    batch of fewer rows takes code of its own, whose last bits differ)."""
+    cap = -(-n // 64)
+    return min(n, -(-cap // BATCH_ROWS) * BATCH_ROWS) if cap > BATCH_ROWS else cap
+
+
+def pending_in_order(todo, rows: int):
+    """Indices of up to ``rows`` pending paths (``todo``, ``(n,)`` bool) in order, ``n`` past the last: the first two
+    of each run of ``PICK_RUN`` paths (reductions), compacted by ``jnp.nonzero`` over these few candidates (over all
+    ``n`` paths it costs some 150 us for 1e4 on a CPU, more than a batch's resolution). A third pending path of a
+    run waits for the next batch."""
+    n = todo.shape[0]
+    lanes = -(-n // PICK_RUN)
+    runs = jnp.pad(todo, (0, lanes * PICK_RUN - n)).reshape(lanes, PICK_RUN)
+    first = jnp.argmax(runs, axis=1)
+    rest = runs & (jnp.arange(PICK_RUN)[None, :] != first[:, None])
+    picked = jnp.stack([jnp.any(runs, axis=1), jnp.any(rest, axis=1)], axis=1).reshape(-1)
+    candidates = jnp.arange(lanes)[:, None] * PICK_RUN + jnp.stack([first, jnp.argmax(rest, axis=1)], axis=1)
+    candidates = jnp.append(candidates.reshape(-1).astype(jnp.int32), n)
+    return candidates[jnp.nonzero(picked, size=rows, fill_value=2 * lanes)[0]]
 
 
 def compact(eng: Engine, packing: Packing, columns, carry):
     """One compact batch: up to :func:`compact_rows` pending paths of ``carry = ((q, v), todo, any pending)``, in
-    order (``jnp.nonzero``), their rows gathered column by column, resolved, scattered back into ``q`` and ``v``
-    and cleared from ``todo``."""
+    order (:func:`pending_in_order`), their rows gathered column by column, resolved, scattered back into ``q`` and
+    ``v`` and cleared from ``todo``."""
     y1, todo, _ = carry
     n, d = y1[0].shape
-    idx = jnp.nonzero(todo, size=compact_rows(n), fill_value=n)[0]
+    idx = pending_in_order(todo, compact_rows(n))
     end = resolve_batch(eng, packing, jnp.concatenate([c.at[idx].get(mode="clip") for c in columns], axis=1), False)
     y1 = tuple(y.at[idx].set(part, mode="drop") for y, part in zip(y1, (end[:, :d], end[:, d:]), strict=True))
     todo = todo.at[idx].set(False, mode="drop")
     return y1, todo, jnp.any(todo)
+
+
+def compact_depth(n: int) -> int:
+    """Depth of the :func:`tree` of compact batches that serves any step of ``n`` paths. A batch takes
+    :func:`compact_rows` paths, or else every run's first two (:func:`pending_in_order`), which empties every run
+    within ``PICK_RUN / 2`` such batches: ``n // rows + PICK_RUN / 2`` batches serve all."""
+    return (n // compact_rows(n) + PICK_RUN // 2 - 1).bit_length()
 
 
 def resolve_crossings(eng: Engine, y0, tau0, y1, e, rand, h, held=None, force=None, departs=None):
@@ -220,9 +247,12 @@ def resolve_crossings(eng: Engine, y0, tau0, y1, e, rand, h, held=None, force=No
     todo = each(to_locate, eng)(y0, y1, rand) if held is None else each(to_locate, eng)(y0, y1, rand, held) | departs
     if eng.sticking and unbranched:
         todo = todo | each(rests, eng)(*y0, rand)
-    leaf = functools.partial(compact, eng, packing, columns)
-    if not wide:  # compact batches until none is pending (one where at most compact_rows paths cross)
-        return tree(leaf, (y1, todo, jnp.any(todo)), depth_for(n, compact_rows(n)))[0]
+
+    def by_compact(y1, todo):  # compact batches until none is pending (one where few paths cross)
+        return tree(functools.partial(compact, eng, packing, columns), (y1, todo, jnp.any(todo)), compact_depth(n))[0]
+
+    if not wide:
+        return by_compact(y1, todo)
     if unbranched:
         end = wide_first(eng, packing, columns, jnp.concatenate(y1, axis=1), todo)
         return end[:, :d], end[:, d:]
@@ -232,5 +262,5 @@ def resolve_crossings(eng: Engine, y0, tau0, y1, e, rand, h, held=None, force=No
         return end[:, :d], end[:, d:]
 
     count = jnp.sum(todo, dtype=jnp.int32)
-    served = (lambda y1, _: y1, lambda y1, todo: leaf((y1, todo, True))[0], crowded)
+    served = (lambda y1, _: y1, by_compact, crowded)
     return jax.lax.switch((count > 0).astype(jnp.int32) + (count > n // CROWDED_AT), served, y1, todo)

@@ -51,7 +51,7 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
 
     ``path_model(rand)`` builds one path's model from its random-parameter vector. Impacts are resolved
     on the crossing paths only, gathered in small batches, resolved and scattered back: compact batches of up to
-    ``n / 128`` of them (at least 32), or in chunks of ``WIDE_CHUNK`` paths or more a first batch of up to
+    ``ceil(n / 64)`` of them, or in chunks of ``WIDE_CHUNK`` paths or more a first batch of up to
     ``ceil(n / 16)`` (see :mod:`.batches`). With ``substeps``
     (and a model that may be stiff) each path that needs it takes the step as sub-steps of its own (see
     :class:`Substeps`).
