@@ -1,4 +1,4 @@
-"""The wide resolution of large chunks (``WIDE_CHUNK`` paths or more) gives the states of the lane resolution that
+"""The wide resolution of large chunks (``WIDE_CHUNK`` paths or more) gives the states of the compact batches that
 smaller chunks use, both as an accelerator runs it (without branches) and as a CPU does (a wide batch only in the
 steps where many paths cross): the threshold is lowered so that small chunks take it here."""
 
@@ -69,6 +69,17 @@ def test_wide_resolution_gives_the_lane_states(name, branch_free, monkeypatch, l
     np.testing.assert_allclose(wide, lanes, rtol=0, atol=1e-5)
 
 
+@pytest.mark.parametrize("name", ["all cross at once", "impact damper"])
+def test_compact_batches_give_the_same_states_whatever_their_rows(name, monkeypatch):
+    """A chunk's crossing paths go through compact batches of ``compact_rows`` rows (8 of 512 paths), as many as a
+    step needs (64 in the first step of the first scene, where every path crosses): batches of 16 rows, fewer of
+    them, give the same states bit for bit, since every row is resolved by the same code whichever batch serves it."""
+    scene = SCENES[name]()
+    eight = _states(scene, 512, False, monkeypatch)
+    monkeypatch.setattr(batches, "compact_rows", lambda n: 16)
+    np.testing.assert_array_equal(_states(scene, 512, False, monkeypatch), eight)
+
+
 def test_reverse_mode_through_the_wide_resolution(monkeypatch):
     """Reverse mode (``jax.value_and_grad``) of E[x^2] at t = 0.5 s with respect to the restitution, through the
     wide resolution (64 paths from the barrier's side, every one crossing at once, so the lanes serve most of them
@@ -90,10 +101,12 @@ def test_reverse_mode_through_the_wide_resolution(monkeypatch):
     np.testing.assert_allclose(float(second_moment(0.98)[1]), float(central), rtol=2e-3)
 
 
-@pytest.mark.parametrize(
-    "n, wide, rows",
-    [(14286, True, 896), (16384, True, 1024), (8192, True, 512), (14272, False, 224), (512, False, 8), (100, False, 2)],
-)
-def test_batch_rows_are_a_multiple_of_eight_above_it(n, wide, rows):
-    """Batches above ``BATCH_ROWS`` rows are rounded up to a multiple of it (odd ones ran 2x slower on a CPU)."""
-    assert batches.batch_rows(n, wide) == rows
+@pytest.mark.parametrize("n, rows", [(14286, 896), (16384, 1024), (8192, 512), (100, 7), (8, 1)])
+def test_batch_rows_are_a_multiple_of_eight_above_it(n, rows):
+    """Wide batches above ``BATCH_ROWS`` rows are rounded up to a multiple of it (odd ones ran 2x slower on a CPU)."""
+    assert batches.batch_rows(n) == rows
+
+
+@pytest.mark.parametrize("n, rows", [(10_000, 160), (14_286, 224), (5000, 80), (512, 8), (100, 2)])
+def test_compact_rows_are_a_64th_of_the_chunk(n, rows):
+    assert batches.compact_rows(n) == rows

@@ -29,12 +29,13 @@ state is ``q``, ``v`` of shape ``(d,)``; its model's unilateral constraints ``c_
    the end of its full step, exceeds ``limit / h`` redoes that step as
    ``k = min(max_substeps, ceil(h rho / limit))`` equal sub-steps of its own (see :class:`Substeps`).
 
-Only the crossing paths do the impact work, in batches of up to ``ceil(n / 64)`` paths gathered in one
-piece, each path's impacts resolved on the batch's small arrays and scattered back; the loops have static trip
-counts and skip their iterations (``lax.cond``) once no path is pending, so the resolution is traced once whatever
-``max_impacts``, and a step without any crossing skips all of it. Chunks of ``WIDE_CHUNK`` paths or more
-resolve a first batch of up to ``n / 16`` crossing paths: an accelerator's (where every branch costs a read by
-the host) in every step without branches, a CPU's in the steps where more than ``n / 128`` paths cross. The
+Only the crossing paths do the impact work, gathered into small batches, each path's impacts resolved on the
+batch's small arrays and scattered back; the loops have static trip counts and skip their iterations (``lax.cond``)
+once no path is pending, so the resolution is traced once whatever ``max_impacts``, and a step without any crossing
+skips all of it. Compact batches of up to ``ceil(n / 64)`` crossing paths, in order, serve a step until none is
+left. A chunk of ``WIDE_CHUNK`` paths or more has a first batch of up
+to ``n / 16`` crossing paths: an accelerator's (where every branch costs a read by the host) in every step without
+branches, a CPU's in the steps where more than ``n / 128`` paths cross (compact batches in the others). The
 ``"mirror"`` method is the first-order "flip after the step" rule, kept for comparison.
 
 The parts, one module each: :mod:`.settings` (the static settings :class:`ImpactRule` and :class:`Substeps`),

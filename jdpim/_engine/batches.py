@@ -1,25 +1,29 @@
 r"""The resolution of a step's crossings: the crossing paths gathered in small batches, resolved and scattered back.
 
-The paths are split into ``cap`` lanes of ``G = ceil(n / cap)`` (``cap``: :func:`batch_rows`, ``ceil(n / 64)``), and
-a batch takes the first crossing path of every lane that has one, gathered in one piece (every per-path input packed
-in the columns of one array, :func:`pack`), resolves up to ``max_impacts`` impacts of each on these few rows
-(:func:`resolve_batch`), and scatters their end states back (:func:`one_batch`). Every loop that runs on the batch
-touches only its small arrays, and every loop level over batches has a few operations in a chain, so XLA's CPU runtime
-runs them inline rather than handing them to its thread pool (which costs more than the work).
+A compact batch (:func:`compact`) takes up to :func:`compact_rows` (``ceil(n / 64)``) pending paths in order,
+the first two of each run of 32 (:func:`pending_in_order`: reductions, where ``jnp.nonzero`` over every path costs
+more than the resolution), gathers their rows column by column, resolves up to ``max_impacts`` impacts of each on
+these few rows (:func:`resolve_batch`) and scatters their end states back into ``q`` and ``v``. Every loop that runs
+on the batch touches only its small arrays. Compact batches run until none is pending: ``2**depth`` of them serve
+any step (:func:`compact_depth`), as a binary tree of ``fori_loop`` of two iterations (static trip counts, so
+reverse-mode AD works) whose subtrees are skipped once no path is pending (:func:`tree`); the resolution is traced
+once, and a step whose crossings fit in one batch runs one. They serve every step of a chunk of fewer than
+``WIDE_CHUNK`` paths.
 
-``G`` batches serve any step; ``2**depth >= G`` of them run as a binary tree of ``fori_loop`` of two iterations
-(static trip counts, so reverse-mode AD works) whose subtrees are skipped once no path is pending (:func:`batches`):
-the resolution is traced once, and a step whose crossings fit in one batch passes ``depth`` skipped subtrees.
+A chunk of ``WIDE_CHUNK`` paths or more (an accelerator's; a CPU's where ``default_chunk_size`` makes it so) has a
+wide batch (:func:`wide_first`): up to ``cap`` (``ceil(n / 16)``, :func:`batch_rows`) crossing paths, taken in
+order and gathered column by column, every round on every row; batches of the first pending path of each of
+``cap`` lanes of ``G = 16`` paths (:func:`one_batch`, :func:`batches`) serve the crossings beyond it. On an
+accelerator that runs in every step without branches: every branch costs a read of its predicate by the host and
+kernels of its own, which set the cost of a step (docs/speed.md). There the paths at rest on the barrier (one degree
+of freedom) are served with the crossing paths, and their batch restarts them where the force pulls them off. On a
+CPU a branch is cheap, and a wide batch costs as much whether 10 or 800 paths cross: a step is served by how many
+cross (a ``lax.switch``): none, nothing; up to ``n / CROWDED_AT``, compact batches; more (the impact damper's
+rattling), the wide batch first.
 
-A chunk of ``WIDE_CHUNK`` paths or more (an accelerator's; a CPU's where ``default_chunk_size`` makes it so) is served
-by a wide batch first (:func:`wide_first`): up to ``cap`` (``ceil(n / 16)``) crossing paths, taken in order
-(``jnp.nonzero``) and gathered column by column, every round on every row; lanes of ``G = 16`` paths serve the
-crossings beyond it. On an accelerator that runs in every step without branches: every branch costs a read of its
-predicate by the host and kernels of its own, which set the cost of a step (docs/speed.md). There the paths at rest on
-the barrier (one degree of freedom) are served with the crossing paths, and their batch restarts them where the force
-pulls them off. On a CPU a branch is cheap, and a wide batch costs as much whether 10 or 800 paths cross: only a step
-where more than ``n / CROWDED_AT`` paths cross takes it (the impact damper's rattling), any other the lanes of 64 (the
-reference scene's few crossings).
+A compact batch resolves each row by the same function whatever the batch's rows (rounds under ``lax.cond``), so a
+path's end state does not depend on which batch serves it; the wide batch runs every round on every row without
+branches, which XLA fuses differently, and agrees with it to rounding.
 """
 
 from __future__ import annotations
@@ -37,13 +41,15 @@ from .one_path import Engine, each, from_rest, per_path, resolve, resolve_event,
 
 # chunks of at least this many paths resolve their crossings in a wide batch first, of a WIDE_SHARE-th of the
 # paths: an accelerator's chunks in every step, without branches; a CPU's (where default_chunk_size makes them so)
-# in the steps where more than a CROWDED_AT-th of the paths cross, the others by the lanes (docs/mdof.md)
+# in the steps where more than a CROWDED_AT-th of the paths cross, the others by compact batches (docs/mdof.md)
 WIDE_CHUNK = 8192
 WIDE_SHARE = 16
 CROWDED_AT = 128
 # a batch of more rows than this has a multiple of them: XLA's CPU code for a batch of an odd number of rows is
 # markedly slower per step
 BATCH_ROWS = 8
+# a compact batch takes the first two pending paths of each run of this many paths
+PICK_RUN = 32
 
 
 def branch_free(n: int) -> bool:
@@ -51,11 +57,10 @@ def branch_free(n: int) -> bool:
     return n >= WIDE_CHUNK and not on_cpu()
 
 
-def batch_rows(n: int, wide: bool) -> int:
-    """Rows of one resolution batch in a chunk of ``n`` paths: ``ceil(n / 64)``, or ``ceil(n / WIDE_SHARE)`` in a
-    wide chunk, rounded up to a multiple of ``BATCH_ROWS`` above it (XLA's CPU code is markedly slower per step
-    for batches of an odd number of rows)."""
-    cap = -(-n // WIDE_SHARE) if wide else max(1, -(-n // 64))
+def batch_rows(n: int) -> int:
+    """Rows of a wide batch in a chunk of ``n`` paths: ``ceil(n / WIDE_SHARE)``, rounded up to a multiple of
+    ``BATCH_ROWS`` above it (XLA's CPU code is markedly slower per step for batches of an odd number of rows)."""
+    cap = -(-n // WIDE_SHARE)
     return min(n, -(-cap // BATCH_ROWS) * BATCH_ROWS) if cap > BATCH_ROWS else cap
 
 
@@ -146,45 +151,90 @@ def resolve_batch(eng: Engine, packing: Packing, rows, wide):
     return jnp.concatenate(b1, axis=1)
 
 
-def one_batch(eng: Engine, packing: Packing, carry, wide, in_order=False):
-    """One batch: up to ``batch_rows`` pending paths of ``carry = (source, end, todo, any pending)`` resolved, their
-    end states scattered into ``end`` and their ``todo`` cleared; taken in order or the first of every lane."""
+def one_batch(eng: Engine, packing: Packing, carry, in_order=False):
+    """One wide batch: up to ``batch_rows`` pending paths of ``carry = (columns, end, todo, any pending)`` resolved,
+    their end states scattered into ``end`` and their ``todo`` cleared; taken in order or the first of every lane."""
     source, end, todo, _ = carry
     n = packing.n
-    cap = batch_rows(n, wide)
+    cap = batch_rows(n)
     idx = jnp.nonzero(todo, size=cap, fill_value=n)[0] if in_order else first_in_lanes(todo, cap)
-    if wide:  # the columns themselves: packing them would copy every path in every step
-        rows = jnp.concatenate([c.at[idx].get(mode="clip") for c in source], axis=1)
-    else:
-        rows = source.at[idx].get(mode="clip")
-    end = end.at[idx].set(resolve_batch(eng, packing, rows, wide), mode="drop")
+    # the columns themselves: packing them would copy every path in every step
+    rows = jnp.concatenate([c.at[idx].get(mode="clip") for c in source], axis=1)
+    end = end.at[idx].set(resolve_batch(eng, packing, rows, True), mode="drop")
     todo = todo.at[idx].set(False, mode="drop")
     return source, end, todo, jnp.any(todo)
 
 
-def batches(eng: Engine, packing: Packing, carry, wide, depth=None):
-    """``carry`` if no path is pending, else up to ``2**depth`` batches (``None``: enough for any step): two
-    subtrees of ``depth - 1``."""
-    if depth is None:
-        depth = (-(-packing.n // batch_rows(packing.n, wide)) - 1).bit_length()
+def tree(leaf, carry, depth: int):
+    """``carry`` if no path is pending (``carry[-1]``), else up to ``2**depth`` calls of ``leaf`` (one batch each):
+    two subtrees of ``depth - 1``, in a ``fori_loop`` of two iterations."""
 
     def run(carry):
         if depth == 0:
-            return one_batch(eng, packing, carry, wide)
-        return jax.lax.fori_loop(0, 2, lambda _, c: batches(eng, packing, c, wide, depth - 1), carry)
+            return leaf(carry)
+        return jax.lax.fori_loop(0, 2, lambda _, c: tree(leaf, c, depth - 1), carry)
 
-    return jax.lax.cond(carry[3], run, lambda c: c, carry)
+    return jax.lax.cond(carry[-1], run, lambda c: c, carry)
 
 
-def by_lanes(eng: Engine, packing: Packing, columns, end, todo):
-    """The end states with every pending path resolved by batches of the first pending path of every lane."""
-    return batches(eng, packing, (jnp.concatenate(columns, axis=1), end, todo, jnp.any(todo)), wide=False)[1]
+def depth_for(n: int, rows: int) -> int:
+    """Depth of a :func:`tree` of batches of ``rows`` rows that serves any step of ``n`` paths."""
+    return (-(-n // rows) - 1).bit_length()
+
+
+def batches(eng: Engine, packing: Packing, carry):
+    """``carry`` with every pending path resolved by wide batches of the first pending path of every lane."""
+    return tree(functools.partial(one_batch, eng, packing), carry, depth_for(packing.n, batch_rows(packing.n)))
 
 
 def wide_first(eng: Engine, packing: Packing, columns, end, todo):
     """The end states with a wide batch of the pending paths in order resolved first, then the rest by lanes."""
-    first = one_batch(eng, packing, (columns, end, todo, True), wide=True, in_order=True)
-    return batches(eng, packing, first, wide=True)[1]
+    first = one_batch(eng, packing, (columns, end, todo, True), in_order=True)
+    return batches(eng, packing, first)[1]
+
+
+def compact_rows(n: int) -> int:
+    """Rows of a compact batch (:func:`compact`) in a chunk of ``n`` paths: ``ceil(n / 64)``, rounded up to a multiple
+    of ``BATCH_ROWS`` above it (XLA's CPU code is markedly slower per step for batches of an odd number of rows, and a
+    batch of fewer rows takes code of its own, whose last bits differ)."""
+    cap = -(-n // 64)
+    return min(n, -(-cap // BATCH_ROWS) * BATCH_ROWS) if cap > BATCH_ROWS else cap
+
+
+def pending_in_order(todo, rows: int):
+    """Indices of up to ``rows`` pending paths (``todo``, ``(n,)`` bool) in order, ``n`` past the last: the first two
+    of each run of ``PICK_RUN`` paths (reductions), compacted by ``jnp.nonzero`` over these few candidates (over all
+    ``n`` paths it costs some 150 us for 1e4 on a CPU, more than a batch's resolution). A third pending path of a
+    run waits for the next batch."""
+    n = todo.shape[0]
+    lanes = -(-n // PICK_RUN)
+    runs = jnp.pad(todo, (0, lanes * PICK_RUN - n)).reshape(lanes, PICK_RUN)
+    first = jnp.argmax(runs, axis=1)
+    rest = runs & (jnp.arange(PICK_RUN)[None, :] != first[:, None])
+    picked = jnp.stack([jnp.any(runs, axis=1), jnp.any(rest, axis=1)], axis=1).reshape(-1)
+    candidates = jnp.arange(lanes)[:, None] * PICK_RUN + jnp.stack([first, jnp.argmax(rest, axis=1)], axis=1)
+    candidates = jnp.append(candidates.reshape(-1).astype(jnp.int32), n)
+    return candidates[jnp.nonzero(picked, size=rows, fill_value=2 * lanes)[0]]
+
+
+def compact(eng: Engine, packing: Packing, columns, carry):
+    """One compact batch: up to :func:`compact_rows` pending paths of ``carry = ((q, v), todo, any pending)``, in
+    order (:func:`pending_in_order`), their rows gathered column by column, resolved, scattered back into ``q`` and
+    ``v`` and cleared from ``todo``."""
+    y1, todo, _ = carry
+    n, d = y1[0].shape
+    idx = pending_in_order(todo, compact_rows(n))
+    end = resolve_batch(eng, packing, jnp.concatenate([c.at[idx].get(mode="clip") for c in columns], axis=1), False)
+    y1 = tuple(y.at[idx].set(part, mode="drop") for y, part in zip(y1, (end[:, :d], end[:, d:]), strict=True))
+    todo = todo.at[idx].set(False, mode="drop")
+    return y1, todo, jnp.any(todo)
+
+
+def compact_depth(n: int) -> int:
+    """Depth of the :func:`tree` of compact batches that serves any step of ``n`` paths. A batch takes
+    :func:`compact_rows` paths, or else every run's first two (:func:`pending_in_order`), which empties every run
+    within ``PICK_RUN / 2`` such batches: ``n // rows + PICK_RUN / 2`` batches serve all."""
+    return (n // compact_rows(n) + PICK_RUN // 2 - 1).bit_length()
 
 
 def resolve_crossings(eng: Engine, y0, tau0, y1, e, rand, h, held=None, force=None, departs=None):
@@ -194,15 +244,23 @@ def resolve_crossings(eng: Engine, y0, tau0, y1, e, rand, h, held=None, force=No
     n, d = y0[0].shape
     wide, unbranched = n >= WIDE_CHUNK, branch_free(n)
     columns, packing = pack(eng, y0, tau0, y1, e, rand, h, held, force)
-    lanes, first = (functools.partial(f, eng, packing, columns) for f in (by_lanes, wide_first))
     todo = each(to_locate, eng)(y0, y1, rand) if held is None else each(to_locate, eng)(y0, y1, rand, held) | departs
     if eng.sticking and unbranched:
         todo = todo | each(rests, eng)(*y0, rand)
-    end = jnp.concatenate(y1, axis=1)
+
+    def by_compact(y1, todo):  # compact batches until none is pending (one where few paths cross)
+        return tree(functools.partial(compact, eng, packing, columns), (y1, todo, jnp.any(todo)), compact_depth(n))[0]
+
     if not wide:
-        end = jax.lax.cond(jnp.any(todo), lanes, lambda end, _: end, end, todo)
-    elif unbranched:
-        end = first(end, todo)
-    else:  # a CPU: a branch is cheap, no host reads its predicate from an accelerator's memory
-        end = jax.lax.cond(jnp.sum(todo) > n // CROWDED_AT, first, lanes, end, todo)
-    return end[:, :d], end[:, d:]
+        return by_compact(y1, todo)
+    if unbranched:
+        end = wide_first(eng, packing, columns, jnp.concatenate(y1, axis=1), todo)
+        return end[:, :d], end[:, d:]
+
+    def crowded(y1, todo):  # a CPU: a branch is cheap, no host reads its predicate from an accelerator's memory
+        end = wide_first(eng, packing, columns, jnp.concatenate(y1, axis=1), todo)
+        return end[:, :d], end[:, d:]
+
+    count = jnp.sum(todo, dtype=jnp.int32)
+    served = (lambda y1, _: y1, by_compact, crowded)
+    return jax.lax.switch((count > 0).astype(jnp.int32) + (count > n // CROWDED_AT), served, y1, todo)

@@ -103,6 +103,3 @@ def mirror(model, q, v):
         v_new = dot(geo.keep[j], v) - geo.r[j] * dot(geo.normal[j], v) * geo.push[j]
         q, v = jnp.where(beyond, q_new, q), jnp.where(beyond, v_new, v)
     return q, v
-
-
-# chunks of at least this many paths resolve their crossings in a wide batch first, of a WIDE_SHARE-th of the

@@ -50,9 +50,11 @@ def make_batch_step(path_model, rule: ImpactRule, h, substeps: Substeps | None =
     (or one ``(n, 3, m)`` array).
 
     ``path_model(rand)`` builds one path's model from its random-parameter vector. Impacts are resolved
-    on the crossing paths only, in batches of up to ``ceil(n / 64)`` of them (``ceil(n / 16)`` in chunks of
-    ``WIDE_CHUNK`` paths or more) gathered, resolved and scattered back. With ``substeps`` (and a model that
-    may be stiff) each path that needs it takes the step as sub-steps of its own (see :class:`Substeps`).
+    on the crossing paths only, gathered in small batches, resolved and scattered back: compact batches of up to
+    ``ceil(n / 64)`` of them, or in chunks of ``WIDE_CHUNK`` paths or more a first batch of up to
+    ``ceil(n / 16)`` (see :mod:`.batches`). With ``substeps``
+    (and a model that may be stiff) each path that needs it takes the step as sub-steps of its own (see
+    :class:`Substeps`).
     """
     eng = Engine.of(path_model, rule)
     plain = functools.partial(plain_step, eng)
