@@ -43,6 +43,10 @@ def main(argv=None, *, from_program=None) -> int:
         "--quick", action="store_true", help="float32 only, MCS 1e4 only; the NumPy baseline over 2000 steps"
     )
     speed.add_argument("--out", type=pathlib.Path, default=pathlib.Path("jdpim_out/bench"))
+    speed.add_argument(
+        "--versus", action="store_true", help="only jdpim against the NumPy and plain-scan baselines, interleaved"
+    )
+    speed.add_argument("--note", default=None, help="a note for the record (e.g. that the machine was shared)")
     mdof = sub.add_parser("mdof", help="impact damper: dt convergence against a small-dt reference, speed per dof")
     mdof.add_argument("--quick", action="store_true", help="t_end 20 s, 4000 paths; speed at 1e4 paths, t = 50 s")
     mdof.add_argument("--out", type=pathlib.Path, default=pathlib.Path("jdpim_out/bench"))
@@ -100,9 +104,12 @@ def main(argv=None, *, from_program=None) -> int:
             )
         files = write(results, args.out)
     elif args.command == "speed":
-        from .speed import run_speed
+        from .speed import run_speed, run_versus
 
-        files = run_speed(args.out, quick=args.quick, log=lambda s: print(s, flush=True))
+        if args.versus:
+            files = run_versus(args.out, quick=args.quick, note=args.note, log=lambda s: print(s, flush=True))
+        else:
+            files = run_speed(args.out, quick=args.quick, log=lambda s: print(s, flush=True))
     elif args.command == "mdof":
         from .mdof import run_mdof
 

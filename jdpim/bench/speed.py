@@ -42,7 +42,7 @@ from .._integrate import ImpactRule
 from ..methods._paths import _simulate_chunk, dpim_inputs, monte_carlo_inputs, path_forcing
 from .accuracy import ALPHA, GAMMA, D, R, grids, paper_scene
 from .record import record, record_lines
-from .timing import protocol, timed
+from .timing import prepared, protocol, timed
 
 T_END, DT = 200.0, 0.01
 BASELINE_BATCHES = (1_000, 10_000, 100_000)
@@ -258,6 +258,119 @@ def jax_baseline(dtype: str, n_steps: int, *, log=print) -> list[dict]:
         )
         log(f"[speed]   plain jax {rows[-1]}")
     return rows
+
+
+def plain_scan(n_paths: int, n_steps: int, devices, *, dtype: str = "float32"):
+    """``(compile_s, run)``: :func:`jax_mcs` (threefry keys) on ``devices``, the paths split equally over them.
+
+    On several devices each runs ``n_paths / len(devices)`` paths under its own key (``shard_map`` over a mesh
+    of the devices), as a JAX user spreads the plain scan over the cores; ``run()`` returns ``(x, v)``.
+    """
+    mesh = jax.sharding.Mesh(np.asarray(devices), ("d",))
+    spec = jax.sharding.PartitionSpec("d")
+    per_device = n_paths // len(devices)
+
+    def local(key_data):
+        return jax_mcs(per_device, n_steps, jax.random.wrap_key_data(key_data[0]), dtype=dtype)
+
+    fn = jax.jit(jax.shard_map(local, mesh=mesh, in_specs=spec, out_specs=spec, check_vma=False))
+    keys = jax.device_put(
+        jax.random.key_data(jax.random.split(jax.random.key(0), len(devices))),
+        jax.sharding.NamedSharding(mesh, spec),
+    )
+    t0 = time.perf_counter()
+    compiled = fn.lower(keys).compile()
+    compile_s = time.perf_counter() - t0
+    return compile_s, lambda: jax.block_until_ready(compiled(keys))
+
+
+def versus(n_paths: int, t_end: float, repeats: int, *, log=print) -> list[dict]:
+    """Path-steps per second of jdpim's Monte Carlo against the NumPy and plain JAX scan baselines, interleaved.
+
+    The reference scene in float32 from rest, ``n_paths`` paths to ``t_end``: :func:`numpy_mcs` (one core),
+    :func:`plain_scan` and jdpim's Monte Carlo (``GaussianNodes``, the mirror rule and located impacts), each on
+    one device and on every local device. Every configuration is compiled ahead of time (``compile_s``) and
+    run once to warm up; then ``repeats`` rounds run each configuration once in turn, so that a load that
+    comes and goes weighs on all alike; the median wall time and the median process CPU time (``cpu_s``, all
+    threads) of the rounds. ``x_plain_scan``: path-steps per second over the plain scan's on as many devices;
+    ``x_numpy``: over NumPy's on one core.
+    """
+    n_steps = int(round(t_end / DT))
+    device_sets = [jax.local_devices()[:1]] + ([jax.local_devices()] if jax.local_device_count() > 1 else [])
+    configs = [("numpy", "mirror", 1, 0.0, lambda: numpy_mcs(n_paths, t_end=t_end, dtype="float32"))]
+    for devices in device_sets:
+        compile_s, run = plain_scan(n_paths, n_steps, devices)
+        configs.append(("plain scan", "mirror", len(devices), compile_s, run))
+        for impacts in ("mirror", "locate"):
+            scene = paper_scene(t_end, DT, GaussianNodes(), impacts=ImpactRule(method=impacts))
+            compile_s, run, _ = prepared("monte_carlo", scene, n_paths, devices=None if len(devices) == 1 else devices)
+            configs.append(("jdpim monte_carlo", impacts, len(devices), compile_s, run))
+    for *_, run in configs:
+        run()
+    wall, cpu = [[] for _ in configs], [[] for _ in configs]
+    for _ in range(repeats):
+        for i, (*_, run) in enumerate(configs):
+            t0, c0 = time.perf_counter(), time.process_time()
+            run()
+            wall[i].append(time.perf_counter() - t0)
+            cpu[i].append(time.process_time() - c0)
+    rows = []
+    for (code, impacts, n_dev, compile_s, _), w, c in zip(configs, wall, cpu, strict=True):
+        median = statistics.median(w)
+        rows.append(
+            {
+                "code": code,
+                "impacts": impacts,
+                "devices": n_dev,
+                "n_paths": n_paths,
+                "n_steps": n_steps,
+                "compile_s": round(compile_s, 2) if code != "numpy" else None,
+                "median_s": round(median, 3),
+                "cpu_s": round(statistics.median(c), 3),
+                "path_steps_per_s": float(f"{n_paths * n_steps / median:.3g}"),
+            }
+        )
+    numpy_rate = rows[0]["path_steps_per_s"]
+    plain = {r["devices"]: r["path_steps_per_s"] for r in rows if r["code"] == "plain scan"}
+    for r in rows:
+        r["x_plain_scan"] = round(r["path_steps_per_s"] / plain[r["devices"]], 2)
+        r["x_numpy"] = round(r["path_steps_per_s"] / numpy_rate, 2)
+        log(f"[speed]   {r}")
+    return rows
+
+
+def run_versus(out: pathlib.Path, *, quick: bool = False, note: str | None = None, log=print) -> list[str]:
+    """:func:`versus` at 1e4 paths (and 1e5 unless ``quick``) to t = 20 s (``quick``) or 50 s, 5 rounds;
+    writes ``versus.json`` and ``versus.md`` (``versus_quick.*``) under ``out``, with ``note`` in the record."""
+    t_end, sizes = (20.0, (10_000,)) if quick else (50.0, (10_000, 100_000))
+    rows = []
+    for n in sizes:
+        log(f"[speed] interleaved: {n} paths to t = {t_end:g} s ...")
+        rows += versus(n, t_end, 5, log=log)
+    rec = record(
+        "each configuration compiled ahead of time (compile_s, apart) and run once to warm up; then 5 rounds, each "
+        "running every configuration once in turn (interleaved); the median wall time of the rounds (median_s) "
+        "and the median process CPU time (cpu_s, all threads); the clock covers the whole run and the transfer "
+        "of the final states"
+    )
+    if note:
+        rec["note"] = note
+    info = {"record": rec, "scene": {"alpha": ALPHA, "gamma": GAMMA, "r": R, "D": D, "dt": DT}, "rows": rows}
+    out.mkdir(parents=True, exist_ok=True)
+    name = "versus_quick" if quick else "versus"
+    (out / f"{name}.json").write_text(json.dumps(info, indent=1) + "\n")
+    cols = ["code", "impacts", "devices", "n_paths", "n_steps", "compile_s", "median_s", "cpu_s"]
+    cols += ["path_steps_per_s", "x_plain_scan", "x_numpy"]
+    lines = record_lines(rec) + [
+        f"The reference scene (alpha = gamma = 0.03, r = 0.98, D = 0.03, dt = {DT:g} s) from rest, float32: "
+        "in-place NumPy RK4 (`numpy_mcs`, one core), the plain JAX `lax.scan` (`jax_mcs`, threefry normals per "
+        "step; `shard_map` over the devices) and jdpim's Monte Carlo (`GaussianNodes`), path-steps per second.",
+        "",
+        *_table(rows, cols),
+    ]
+    (out / f"{name}.md").write_text("\n".join(lines) + "\n")
+    log("\n".join(lines))
+    return [f"{name}.json", f"{name}.md"]
 
 
 def numpy_baseline(dtype: str, n_steps: int, *, quick: bool, log=print) -> list[dict]:

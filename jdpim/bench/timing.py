@@ -62,6 +62,35 @@ class Timing:
         }
 
 
+def prepared(method: str, scene: Scene, n: int, *, seed: int = 0, points=None, chunk_size=None, devices=None):
+    """``(compile_s, run, finish)`` of ``method`` (``"dpim"`` or ``"monte_carlo"``) with ``n`` paths: the seconds of
+    its ahead-of-time compilation, ``run()`` (one call: the saved states, blocked until ready) and
+    ``finish(states)`` (the :class:`jdpim.Result`). See :func:`timed` for ``devices``."""
+    if method == "dpim":
+        rows, weights, chunk = dpim_inputs(scene, n, points=points, chunk_size=chunk_size)
+    elif method == "monte_carlo":
+        rows, weights, chunk = monte_carlo_inputs(scene, n, seed=seed, chunk_size=chunk_size)
+    else:
+        raise ValueError(f"method must be 'dpim' or 'monte_carlo', got {method!r}")
+    n, n_devices = int(rows.shape[0]), 1 if devices is None else len(devices)
+    t0 = time.perf_counter()
+    if n_devices == 1:
+        compiled = simulate.lower(scene, rows, kind=method, chunk_size=chunk).compile()
+    else:
+        chunk = balanced_chunk(n, chunk, n_devices)
+        fn, sharding = _sharded_simulate(method, chunk, tuple(devices))
+        pad = (-n) % (chunk * n_devices)
+        rows = jax.device_put(pad_rows(rows, pad), sharding)
+        compiled = fn.lower(scene, rows).compile()
+    compile_s = time.perf_counter() - t0
+    home = None if devices is None else home_device(tuple(devices))
+
+    def finish(states):
+        return _finish(scene, (states if home is None else jax.device_put(states, home))[:n], weights, method)
+
+    return compile_s, lambda: jax.block_until_ready(compiled(scene, rows)), finish
+
+
 def timed(
     method: str,
     scene: Scene,
@@ -86,30 +115,15 @@ def timed(
     Returns:
         the :class:`jdpim.Result` of the last run and its :class:`Timing`.
     """
-    if method == "dpim":
-        rows, weights, chunk = dpim_inputs(scene, n, points=points, chunk_size=chunk_size)
-    elif method == "monte_carlo":
-        rows, weights, chunk = monte_carlo_inputs(scene, n, seed=seed, chunk_size=chunk_size)
-    else:
-        raise ValueError(f"method must be 'dpim' or 'monte_carlo', got {method!r}")
-    n, n_devices = int(rows.shape[0]), 1 if devices is None else len(devices)
-    t0 = time.perf_counter()
-    if n_devices == 1:
-        compiled = simulate.lower(scene, rows, kind=method, chunk_size=chunk).compile()
-    else:
-        chunk = balanced_chunk(n, chunk, n_devices)
-        fn, sharding = _sharded_simulate(method, chunk, tuple(devices))
-        pad = (-n) % (chunk * n_devices)
-        rows = jax.device_put(pad_rows(rows, pad), sharding)
-        compiled = fn.lower(scene, rows).compile()
-    compile_s = time.perf_counter() - t0
+    compile_s, run, finish = prepared(
+        method, scene, n, seed=seed, points=points, chunk_size=chunk_size, devices=devices
+    )
     if warmup:
-        jax.block_until_ready(compiled(scene, rows))
+        run()
     runs = []
     for _ in range(max(1, repeats)):
         t0 = time.perf_counter()
-        states = jax.block_until_ready(compiled(scene, rows))
+        states = run()
         runs.append(time.perf_counter() - t0)
-    home = None if devices is None else home_device(tuple(devices))
-    result = _finish(scene, (states if home is None else jax.device_put(states, home))[:n], weights, method)
-    return result, Timing(method, n, scene.n_steps, compile_s, tuple(runs), n_devices)
+    n_devices = 1 if devices is None else len(devices)
+    return finish(states), Timing(method, n, scene.n_steps, compile_s, tuple(runs), n_devices)
