@@ -378,8 +378,8 @@ class NodeSource(AbstractNodes):
     Source ``i`` of a path with key ``(k1, k2)`` takes node 0 (the start of step 0) from the first word of
     ``threefry2x32(k1, k2, 0, i)``, and the middle and end nodes of step ``k`` from the two words of
     ``threefry2x32(k1, k2, k + 1, i)`` (:func:`jdpim._normals.normal_pair`): one hash per path, step and source.
-    Each step draws the next step's pair into the carry, so that the hash and the inverse error function run
-    once per step, in one pass over the paths, apart from the step that reads them. The normals are drawn in
+    Each step draws the next step's pairs into the carry: drawn in the step that reads them, the hash would be
+    fused into every RK4 stage that reads a node and computed several times per step. The normals are drawn in
     float32 and cast to ``dtype`` (a seed gives the same samples in float32 and float64 runs), then multiplied
     by ``scale`` ``(m, m)``.
     """
