@@ -378,10 +378,11 @@ class NodeSource(AbstractNodes):
     Source ``i`` of a path with key ``(k1, k2)`` takes node 0 (the start of step 0) from the first word of
     ``threefry2x32(k1, k2, 0, i)``, and the middle and end nodes of step ``k`` from the two words of
     ``threefry2x32(k1, k2, k + 1, i)`` (:func:`jdpim._normals.normal_pair`): one hash per path, step and source.
-    Each step draws the next step's pairs into the carry: drawn in the step that reads them, the hash would be
-    fused into every RK4 stage that reads a node and computed several times per step. The normals are drawn in
-    float32 and cast to ``dtype`` (a seed gives the same samples in float32 and float64 runs), then multiplied
-    by ``scale`` ``(m, m)``.
+    Each step draws the next step's nodes into the carry, scaled: drawn in the step that reads them, the hash
+    would be fused into every RK4 stage that reads a node and computed several times per step, and the scaling
+    fused into the stages would round differently from one compiled program to another. The normals are drawn
+    in float32 and cast to ``dtype`` (a seed gives the same samples in float32 and float64 runs), then
+    multiplied by ``scale`` ``(m, m)``.
     """
 
     keys: jax.Array  # (n, 2) key data
@@ -393,24 +394,26 @@ class NodeSource(AbstractNodes):
         return self.keys.shape[0], self.scale.shape[0]
 
     def _pair(self, counter):
-        """``(n, m)`` complex64: the normals of every path and source for the counter word ``counter``."""
+        """``(n, m)`` complex: the nodes of every path and source for the counter word ``counter``, scaled, in
+        ``dtype`` (the middle node in the real part, the end node in the imaginary part)."""
         shape = self.shape
         k1, k2 = (jnp.broadcast_to(self.keys[:, j, None], shape) for j in (0, 1))
         source = jax.lax.broadcasted_iota(np.uint32, shape, 1)
-        return normal_pair(k1, k2, jnp.full(shape, counter, np.uint32), source)
+        z = normal_pair(k1, k2, jnp.full(shape, counter, np.uint32), source)
+        return jax.lax.complex(self._scaled(jnp.real(z)), self._scaled(jnp.imag(z)))
 
     def _scaled(self, z):
         """``(n, m)``: float32 normals ``z`` in ``dtype``, times ``scale``."""
         return jnp.einsum("...j,ij->...i", z.astype(self.dtype), self.scale)
 
     def start(self):
-        """Node 0 and the normals of step 0."""
-        return self._scaled(jnp.real(self._pair(0))), self._pair(1)
+        """Node 0 and the nodes of step 0."""
+        return jnp.real(self._pair(0)), self._pair(1)
 
     def step(self, k, carry):
-        e_start, z = carry
-        e_mid, e_end = self._scaled(jnp.real(z)), self._scaled(jnp.imag(z))
-        return (e_start, e_mid, e_end), (e_end, self._pair(k + 2))
+        e_start, nodes = carry
+        e_end = jnp.imag(nodes)
+        return (e_start, jnp.real(nodes), e_end), (e_end, self._pair(k + 2))
 
 
 @dataclasses.dataclass(frozen=True)
