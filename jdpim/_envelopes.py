@@ -7,8 +7,10 @@ dataclasses of floats (static: a new value recompiles).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
+import jax
 import jax.numpy as jnp
 
 from ._pytree import check_real
@@ -50,3 +52,75 @@ class ShinozukaSato:
         t_peak = self.peak_time
         peak = math.exp(-self.b1 * t_peak) - math.exp(-self.b2 * t_peak)
         return (jnp.exp(-self.b1 * t) - jnp.exp(-self.b2 * t)) / peak
+
+
+@dataclasses.dataclass(frozen=True)
+class Jennings:
+    r"""The piecewise envelope of Jennings, Housner and Tsai (1968): a quadratic rise, a plateau, an exponential decay.
+
+    .. math::
+        e(t) = (t / t_1)^2 \ (0 \le t < t_1), \qquad 1 \ (t_1 \le t \le t_2), \qquad e^{-c (t - t_2)} \ (t > t_2).
+
+    Amin and Ang (1968) modulate with the same three stages (the same class serves their model). The envelope
+    is continuous, with a peak of 1 over the strong-motion phase ``[t1, t2]``.
+
+    Args:
+        t1: the end of the rise, s (> 0).
+        t2: the end of the strong motion, s (>= t1).
+        c: the decay rate after ``t2``, 1/s (> 0).
+
+    Example:
+        >>> import jdpim
+        >>> env = jdpim.Jennings(t1=2.0, t2=6.0, c=0.5)
+        >>> tuple(round(float(env(t)), 4) for t in (1.0, 4.0, 8.0))
+        (0.25, 1.0, 0.3679)
+    """
+
+    t1: float = 2.0
+    t2: float = 6.0
+    c: float = 0.5
+
+    def __post_init__(self):
+        check_real("t1", self.t1, low=0.0, low_open=True, scalar=True)
+        check_real("t2", self.t2, low=float(self.t1), scalar=True)
+        check_real("c", self.c, low=0.0, low_open=True, scalar=True)
+        for name in ("t1", "t2", "c"):
+            object.__setattr__(self, name, float(getattr(self, name)))
+
+    def __call__(self, t):
+        t = jnp.asarray(t)
+        rise = (jnp.clip(t, 0.0, self.t1) / self.t1) ** 2
+        return rise * jnp.exp(-self.c * jnp.maximum(t - self.t2, 0.0))
+
+
+def check_envelope(envelope) -> None:
+    """``TypeError`` unless ``envelope`` is ``None`` or a hashable function of the time that JAX traces to a real
+    scalar (checked on abstract values: nothing is computed)."""
+    if envelope is None:
+        return
+    if not callable(envelope):
+        raise TypeError(f"envelope must be None or a function e(t) -> scalar, got {envelope!r}")
+    try:
+        hash(envelope)
+    except TypeError:
+        raise TypeError(
+            f"envelope must be hashable (it is static structure: a function, or a frozen dataclass), got {envelope!r}"
+        ) from None
+    message = _traced_scalar(envelope)
+    if message:
+        raise TypeError(message)
+
+
+@functools.lru_cache(maxsize=256)
+def _traced_scalar(envelope) -> str:
+    """``""`` where ``envelope`` traces to a real scalar on a scalar time, else why not (cached: the noise is
+    rebuilt at every pytree unflattening)."""
+    try:
+        out = jax.eval_shape(envelope, jax.ShapeDtypeStruct((), jnp.zeros(()).dtype))
+    except Exception as err:  # noqa: BLE001 - any failure to trace is the user's function's
+        return f"envelope must be a function e(t) that JAX can trace on a scalar time; {envelope!r} failed: {err}"
+    shape, dtype = getattr(out, "shape", None), getattr(out, "dtype", None)
+    real = dtype is not None and jnp.issubdtype(dtype, jnp.number) and not jnp.issubdtype(dtype, jnp.complexfloating)
+    if shape != () or not real:
+        return f"envelope must return a real scalar for a scalar time, got shape {shape} and dtype {dtype}"
+    return ""

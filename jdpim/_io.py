@@ -26,6 +26,8 @@ from typing import Any
 
 import numpy as np
 
+from ._version import __version__
+
 FORMAT = 1  # the layout of the JSON document; a reader refuses a later one
 ENTRY = "jdpim"  # the archive entry that holds the JSON document
 
@@ -62,10 +64,8 @@ def versions() -> dict:
     """Versions of jdpim, JAX, NumPy and Python, and the JAX backend (for the metadata of every output)."""
     import jax
 
-    import jdpim
-
     return {
-        "jdpim": jdpim.__version__,
+        "jdpim": __version__,
         "jax": jax.__version__,
         "numpy": np.__version__,
         "python": platform.python_version(),
@@ -74,22 +74,24 @@ def versions() -> dict:
     }
 
 
+_KNOWN: dict[str, type] = {}
+
+
+def allow(*classes: type) -> None:
+    """Let files name ``classes`` (results, scenes and their parts, methods, estimators): ``jdpim/__init__.py``
+    lists them; a file naming any other class is refused."""
+    _KNOWN.update({k.__name__: k for k in classes})
+
+
 def _classes() -> dict[str, type]:
-    """The classes a file may name, by name: results, scenes and their parts, methods and estimators."""
-    import jdpim
-
-    kinds = (
-        jdpim.Result, jdpim.GridResult, jdpim.FirstPassage, jdpim.ImpactStatistics, jdpim.Sensitivity,
-        jdpim.Scene, jdpim.VibroImpactOscillator, jdpim.Oscillator, jdpim.MDOFOscillator, jdpim.Barrier,
-        jdpim.WhiteNoise, jdpim.SpectralRepresentation, jdpim.GaussianNodes, jdpim.ImpactRule, jdpim.Substeps,
-        jdpim.Normal, jdpim.Uniform, jdpim.TruncatedNormal, jdpim.LogNormal, jdpim.PointSet, jdpim.results.Planes,
-        jdpim.DPIM, jdpim.MonteCarlo, jdpim.PathIntegration, jdpim.SubsetSimulation,
-        jdpim.Pathwise, jdpim.LikelihoodRatio, jdpim.NoiseScaling, jdpim.CentralDifference,
-    )  # fmt: skip
-    return {k.__name__: k for k in kinds}
+    """The classes a file may name, by name."""
+    return _KNOWN
 
 
-RESULTS = ("Result", "GridResult", "FirstPassage", "ImpactStatistics", "Sensitivity")
+RESULTS = (
+    "Result", "GridResult", "FirstPassage", "ImpactStatistics", "Sensitivity",
+    "ResponseMoments", "ResponseSpectrum", "ResponseAutocorrelation", "Fragility", "Tracked", "PeakDistribution",
+)  # fmt: skip
 
 
 class _NotStored(Exception):
@@ -216,6 +218,9 @@ def _decode(node, arrays, classes: dict[str, type], written: str):
     if name not in classes:
         raise ValueError(f"the file, written by jdpim {written}, names a class {name!r} that this jdpim does not know")
     fields = {k: _decode(v, arrays, classes, written) for k, v in node["fields"].items()}
+    if name == "Result" and "independent" not in fields:  # a file from before Result.independent
+        kinds = {getattr(c, "name", None): c for c in classes.values() if hasattr(c, "independent")}
+        fields["independent"] = getattr(kinds.get(fields.get("method")), "independent", False)
     try:
         return classes[name](**fields)
     except TypeError as e:
@@ -229,8 +234,6 @@ def load(path, *, metadata: bool = False):
     A file of a later format is refused; one written by another jdpim version gives a
     :class:`PersistenceWarning`. Arrays are NumPy arrays, bit for bit and dtype for dtype as saved.
     """
-    import jdpim
-
     name = os.fspath(path)
     with np.load(path, allow_pickle=False) as npz:
         if ENTRY not in npz.files:
@@ -242,12 +245,12 @@ def load(path, *, metadata: bool = False):
     written = doc.get("versions", {}).get("jdpim", "unknown")
     if doc.get("format") != FORMAT:
         raise ValueError(
-            f"{name} has file format {doc.get('format')!r} (jdpim {written}); this jdpim ({jdpim.__version__}) "
+            f"{name} has file format {doc.get('format')!r} (jdpim {written}); this jdpim ({__version__}) "
             f"reads format {FORMAT}: load it with jdpim {written}"
         )
-    if written != jdpim.__version__:
+    if written != __version__:
         warnings.warn(
-            f"{name} was written by jdpim {written}; this is jdpim {jdpim.__version__}: check its results against the "
+            f"{name} was written by jdpim {written}; this is jdpim {__version__}: check its results against the "
             "changelog",
             PersistenceWarning,
             stacklevel=2,
@@ -300,11 +303,10 @@ def to_xarray(obj):
         import xarray as xr
     except ImportError:
         raise ImportError("to_xarray needs xarray: pip install jdpim[xarray]") from None
-    import jdpim
 
     kind = type(obj).__name__
     times = np.asarray(obj.times, float)
-    attrs = {"method": obj.method, "jdpim_version": jdpim.__version__}
+    attrs = {"method": obj.method, "jdpim_version": __version__}
     if kind == "Result":
         data = {"states": (("path", "time", "coordinate"), obj.states), "weights": ("path", obj.weights)}
         coords = {"time": times, "coordinate": list(obj.coordinates)}
@@ -323,7 +325,7 @@ def to_xarray(obj):
         attrs |= {k: int(getattr(obj, k)) for k in ("order", "folded", "stationary", "has_barrier")}
     elif kind == "FirstPassage":
         tl = ("time", "level")
-        data = {k: (tl, getattr(obj, k)) for k in ("probability", "stderr", "lost_mass", "grid_error")}
+        data = {k: (tl, getattr(obj, k)) for k in ("probability", "probability_stderr", "lost_mass", "grid_error")}
         for key in ("derivative", "derivative_stderr"):
             data |= {f"{key}_{n}": (tl, d) for n, d in (getattr(obj, key) or {}).items()}
         coords = {"time": times, "level": np.asarray(obj.levels)}
@@ -336,6 +338,10 @@ def to_xarray(obj):
             edges = np.asarray(obj.speed_edges)
             data |= {"speed_density": (("time", "speed"), obj.speed_density), "speed_edges": ("edge", edges)}
             coords |= {"speed": 0.5 * (edges[1:] + edges[:-1])}
+    elif kind == "Tracked":
+        data = {"values": (("path", "time", "component"), obj.values), "weights": ("path", obj.weights)}
+        data |= {k: (("time", "component"), getattr(obj, k)) for k in ("mean", "mean_stderr")}
+        coords = {"time": times}
     else:
         raise TypeError(f"to_xarray takes a jdpim result, got {kind}")
     data = {k: (dims, np.asarray(v)) for k, (dims, v) in data.items() if v is not None}

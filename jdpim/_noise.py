@@ -9,6 +9,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._envelopes import check_envelope
 from ._pytree import check_real, concrete, pytree_dataclass, static_field
 
 
@@ -39,8 +40,7 @@ class WhiteNoise:
     envelope: Callable | None = static_field(default=None)
 
     def __post_init__(self):
-        if self.envelope is not None and not callable(self.envelope):
-            raise TypeError(f"envelope must be None or a function e(t) -> scalar, got {self.envelope!r}")
+        check_envelope(self.envelope)
         if isinstance(self.D, (str, bytes)):
             raise TypeError(f"D must be a real number or a matrix of them, got {self.D!r}")
         if isinstance(self.D, (list, tuple)):  # one array leaf, not a leaf per entry

@@ -105,6 +105,15 @@ def check_real(
         raise ValueError(f"{name} must lie in {rng}, got {plain(value)!r}")
 
 
+def check_number(name: str, value: Any, **bounds) -> float:
+    """``value`` as a float, after :func:`check_real` with ``bounds`` (one number, in range): for a setting that
+    is not traced (it sets a matrix or a grid)."""
+    if not isinstance(value, (int, float, np.integer, np.floating)) or isinstance(value, bool):
+        raise TypeError(f"{name} must be a number, got {value!r}")
+    check_real(name, value, scalar=True, **bounds)
+    return float(value)
+
+
 def check_int(name: str, value: Any, *, low: int) -> int:
     """Return ``value`` as ``int`` after checking it is an integer ``>= low``."""
     if isinstance(value, bool) or not isinstance(value, (numbers.Integral, np.integer)):

@@ -63,23 +63,3 @@ def _randomised_points(distributions, n_points, seed, n_reference) -> PointSet:
     angle = np.array([d == ANGLE for d in distributions])
     theta = np.where(angle, np.mod(ps.theta + np.pi + shift, 2 * np.pi) - np.pi, ps.theta)
     return PointSet(theta=theta, weights=ps.weights, distributions=ps.distributions)
-
-
-def dpim_replicates(scene, n_points: int = 1000, n_replicates: int = 4, *, seed: int = 0, progress=None) -> list:
-    """``n_replicates`` DPIM results of ``scene``, each with its own randomised point set (seeds ``seed + k``).
-
-    The spread of their densities is the error of one run: ``np.std(pdfs, axis=0, ddof=1)``.
-
-    Example (``notebooks/quickstart.ipynb`` runs it)::
-
-        runs = jdpim.dpim_replicates(scene, 1000, 4)
-        sd = np.std([r.pdf("x", grid, t) for r in runs], axis=0, ddof=1)  # the error of one run, on grid
-    """
-    from .methods._dpim import DPIM, dpim
-
-    n_replicates = check_int("n_replicates", n_replicates, low=2)
-    seed = check_int("seed", seed, low=0)
-    dists = DPIM.input_distributions(scene)
-    return [
-        dpim(scene, points=randomised_points(dists, n_points, seed + k), progress=progress) for k in range(n_replicates)
-    ]

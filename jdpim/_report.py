@@ -59,9 +59,10 @@ def timed_protocol(scene, method, *, repeats: int, warmup: bool = True):
     """
     import jax
 
+    import jdpim
     from jdpim.bench import timed as bench_timed
 
-    dpim = method.name == "dpim"
+    dpim = isinstance(method, jdpim.DPIM)
     return bench_timed(
         method.name,
         scene,
@@ -156,7 +157,7 @@ def quantity_grids(results, quantities: dict, times, n_grid: int, q: float = 0.9
 
 def _has_error(res) -> bool:
     """Whether ``res.pdf_error`` has an estimate: Monte Carlo, or path integration with ``estimate_error``."""
-    return res.method == "monte_carlo" or getattr(res, "coarse", None) is not None
+    return getattr(res, "independent", False) or getattr(res, "coarse", None) is not None
 
 
 def _check_spread(res, var, times, name=None) -> None:

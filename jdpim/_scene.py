@@ -13,8 +13,8 @@ import numpy as np
 
 from ._constraints import clearances
 from ._distributions import Distribution, LogNormal, Normal, Range, TruncatedNormal, Uniform
+from ._engine.settings import ImpactRule, Substeps
 from ._excitation import AbstractExcitation
-from ._integrate import ImpactRule, Substeps
 from ._mdof import CONSTRAINT, MATRIX_ENTRY, MDOFOscillator
 from ._models import RK4_RADIUS, AbstractOscillator, AbstractSystem, Oscillator, n_sources_of, rk4_step_limit
 from ._noise import WhiteNoise

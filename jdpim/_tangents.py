@@ -111,9 +111,14 @@ def _report(contributions) -> None:
     """
     c = contributions.reshape(contributions.shape[0], -1)
     if c.shape[1] > PROJECTIONS:
-        directions = np.random.default_rng(0).normal(size=(c.shape[1], PROJECTIONS)) / np.sqrt(PROJECTIONS)
-        c = c @ jnp.asarray(directions, c.dtype)
+        c = c @ jnp.asarray(projections(c.shape[1]), c.dtype)
     jax.debug.callback(check_contributions, c)
+
+
+def projections(m: int) -> np.ndarray:
+    """``PROJECTIONS`` fixed random directions in ``R^m``, ``(m, PROJECTIONS)``: projected on them, per-path
+    contributions keep their squared norms and their sums in expectation."""
+    return np.random.default_rng(0).normal(size=(m, PROJECTIONS)) / np.sqrt(PROJECTIONS)
 
 
 @jax.custom_jvp
@@ -174,6 +179,13 @@ contract_p = Primitive("jdpim_contract")
 def contract(J, td):
     """``sum_p J[p] td[p]`` (see ``contract_p``): per-path tangents from directions' tangents."""
     return contract_p.bind(J, td)
+
+
+def check_only(J, td):
+    """Zeros shaped like ``contract(J, td)``, linear in ``td``: in reverse mode its transpose checks the per-path
+    contributions ``<ct_i, J_i>`` of the cotangent ``ct`` against the per-path tangents ``J`` (``(P, N, ...)``),
+    and adds nothing to any value or derivative."""
+    return contract(J, 0 * td)
 
 
 def _contract_impl(J, td):

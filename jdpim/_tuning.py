@@ -34,7 +34,7 @@ from scipy.stats import qmc
 from ._distributions import elementary_ppf
 from ._points import PointSet, _standardise, assign_probabilities
 from ._pytree import check_int, check_real
-from .results._density import _kernel_matrix, bandwidth, kde
+from .results._density import bandwidth, kde, kernel_matrix
 
 
 def _theta(distributions, u):
@@ -132,7 +132,7 @@ def loo_log_likelihood(samples, weights, sigma, barrier=None):
         sigma: kernel standard deviation (> 0).
         barrier: reflect the kernel at this position, or ``None``.
     """
-    K = _kernel_matrix(samples, samples, sigma, barrier)
+    K = kernel_matrix(samples, samples, sigma, barrier)
     K = K * (1.0 - jnp.eye(samples.shape[0], dtype=K.dtype))
     loo = (K @ weights) / (1.0 - weights)
     return jnp.sum(weights * jnp.log(loo + jnp.finfo(K.dtype).tiny))

@@ -12,15 +12,26 @@ Notation: ``H = (x^2 + v^2) / 2`` (unit natural frequency), ``a = alpha / 2``, `
   per half period ``pi`` losing ``(1 - r^2) H``: ``p_H(H) = exp(-(a_e H + b H^2) / D) / Z``,
   ``a_e = alpha + (1 - r^2) / pi``, ``b = 3 gamma / 4``; ``p(x, v) = p_H(H) / pi`` on ``x > 0``.
 
-All functions are NumPy/SciPy (reference values, not traced).
+* **Linear systems** (no barrier, no nonlinear force; filters included) under white noise, stationary or
+  modulated by an envelope ``e(t)``: the state ``y = (q, q')`` obeys ``y' = A y + G xi`` with
+  ``E[xi xi^T] = 2 D e(t)^2 delta``, and its covariance the Lyapunov equation
+  ``P' = A P + P A^T + G Q(t) G^T``, ``Q(t) = 2 D e(t)^2`` (:func:`lyapunov_covariance`); stationary
+  noise gives the power spectral density ``S(omega) = H Q H^* / (2 pi)``, ``H = (i omega - A)^{-1} G``
+  (:func:`linear_psd`) and the autocorrelation ``R(tau) = e^{A tau} P`` (:func:`linear_autocorrelation`).
+
+All functions are NumPy/SciPy in float64 (reference values, not traced).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 
+import jax
 import numpy as np
-from scipy import integrate, special
+from scipy import integrate, linalg, special
+
+from ._models import AbstractOscillator
+from .filters import as_mdof
 
 
 def linear_covariance(alpha: float, D: float, t: float) -> tuple[float, float, float]:
@@ -147,3 +158,108 @@ def _marginal(joint, y, axis: int, n: int):
     other = np.linspace(0.0 if axis == 0 else -span, span, n)
     grid = joint(other, y) if axis == 0 else joint(y, other)
     return integrate.simpson(grid, x=other, axis=axis)
+
+
+def _state_space(model, noise) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(A, G, Q)`` of a linear ``model`` (a one-degree-of-freedom oscillator is lifted by
+    ``jdpim.filters.as_mdof``): ``y' = A y + G xi``, ``(2 n, 2 n)`` and ``(2 n, m)``; ``Q = 2 D``, ``(m, m)``."""
+    mdof = as_mdof(model) if isinstance(model, AbstractOscillator) else model
+    if mdof.has_barrier or getattr(mdof, "force", None) is not None:
+        raise ValueError(
+            f"the covariance is exact for a linear model (no barrier, no nonlinear force), got {type(model).__name__} "
+            f"with {'a barrier' if mdof.has_barrier else 'a nonlinear force'}"
+        )
+    A = mdof.linearised()
+    if A is None:
+        raise ValueError("the model's parameters must be numbers (they are traced)")
+    n = mdof.dimension
+    G = np.vstack([np.zeros((n, mdof.n_sources)), mdof.inverse_mass() @ np.asarray(mdof.gains, float)])
+    Q = 2.0 * np.atleast_2d(np.asarray(noise.D, float))
+    if Q.shape[0] != G.shape[1]:
+        raise ValueError(f"the noise has {Q.shape[0]} sources; the model has {G.shape[1]}")
+    return np.asarray(A, float), G, Q
+
+
+def lyapunov_covariance(model, noise, times, P0=None) -> np.ndarray:
+    r"""The covariance of the state ``(q, q')`` of a linear model at ``times``: ``P' = A P + P A^T + G Q(t) G^T``.
+
+    ``Q(t) = 2 D e(t)^2`` for a noise modulated by ``e(t)`` (``2 D`` for stationary noise); solved by
+    ``scipy.integrate.solve_ivp`` (DOP853, ``rtol = 1e-10``) in float64, the envelope evaluated in float64.
+
+    Args:
+        model: a linear model (:class:`jdpim.MDOFOscillator` without constraints or ``force``, filters
+            included; or a one-degree-of-freedom oscillator without barrier or nonlinear terms).
+        noise: a :class:`jdpim.WhiteNoise`.
+        times: the times in s, increasing, >= 0.
+        P0: the covariance at ``t = 0``, ``(2 n, 2 n)`` (``None``: zero, a start from rest).
+
+    Returns:
+        ``(len(times), 2 n, 2 n)``, ordered as the model's ``coordinates``.
+
+    Examples:
+        >>> import jdpim
+        >>> model = jdpim.VibroImpactOscillator(alpha=0.2, gamma=None, barrier=None)
+        >>> P = jdpim.exact.lyapunov_covariance(model, jdpim.WhiteNoise(D=0.1), [100.0])
+        >>> round(float(P[0, 0, 0]), 6)  # D / alpha
+        0.5
+    """
+    A, G, Q = _state_space(model, noise)
+    times = np.atleast_1d(np.asarray(times, float))
+    if times.ndim != 1 or np.any(times < 0) or np.any(np.diff(times) < 0) or not np.all(np.isfinite(times)):
+        raise ValueError(f"times must be finite, >= 0 and increasing, got {times.tolist()}")
+    k = A.shape[0]
+    P0 = np.zeros((k, k)) if P0 is None else np.asarray(P0, float)
+    if P0.shape != (k, k):
+        raise ValueError(f"P0 must have shape {(k, k)}, got {P0.shape}")
+    GQG = G @ Q @ G.T
+    envelope = None if noise.envelope is None else jax.jit(noise.envelope)
+
+    def rhs(t, p):
+        P = p.reshape(k, k)
+        weight = 1.0 if envelope is None else float(envelope(t)) ** 2
+        return (A @ P + P @ A.T + weight * GQG).ravel()
+
+    scale = max(1e-300, float(np.abs(GQG).max()))
+    with jax.enable_x64(True):  # the envelope in float64
+        sol = integrate.solve_ivp(
+            rhs, (0.0, float(times[-1])), P0.ravel(), t_eval=times, method="DOP853", rtol=1e-10, atol=1e-14 * scale
+        )
+    if not sol.success:
+        raise RuntimeError(f"the Lyapunov equation could not be integrated: {sol.message}")
+    P = sol.y.T.reshape(len(times), k, k)
+    return 0.5 * (P + np.swapaxes(P, 1, 2))
+
+
+def linear_psd(model, noise, omega) -> np.ndarray:
+    r"""Two-sided power spectral densities ``S_ii(omega)`` (per rad/s) of every state entry of a linear model in
+    its stationary state: the diagonal of ``H Q H^* / (2 pi)``, ``H = (i omega I - A)^{-1} G``, ``Q = 2 D``;
+    ``int S_ii = P_ii``, the stationary variance. For one source this is ``|H_i(omega)|^2 S0``, ``S0 = D / pi``.
+
+    Returns:
+        ``(len(omega), 2 n)``, ordered as the model's ``coordinates``.
+    """
+    A, G, Q = _state_space(model, noise)
+    noise.require_stationary("linear_psd", "give a WhiteNoise without an envelope")
+    omega = np.atleast_1d(np.asarray(omega, float))
+    eye = np.eye(A.shape[0])
+    H = np.linalg.solve(1j * omega[:, None, None] * eye - A, np.broadcast_to(G, (len(omega), *G.shape)))
+    return np.real(np.einsum("wik,kl,wil->wi", H, Q, H.conj())) / (2.0 * np.pi)
+
+
+def linear_autocorrelation(model, noise, lags) -> np.ndarray:
+    r"""Stationary autocovariances ``R_ii(tau) = E[y_i(t) y_i(t + tau)]`` of every state entry of a linear model:
+    the diagonal of ``P e^{A^T tau}``, ``P`` the stationary covariance (``A P + P A^T + G Q G^T = 0``).
+
+    Returns:
+        ``(len(lags), 2 n)``, ordered as the model's ``coordinates``.
+    """
+    A, G, Q = _state_space(model, noise)
+    noise.require_stationary("linear_autocorrelation", "give a WhiteNoise without an envelope")
+    P = linalg.solve_continuous_lyapunov(A, -G @ Q @ G.T)
+    lags = np.abs(np.atleast_1d(np.asarray(lags, float)))
+    lam, V = np.linalg.eig(A.T)
+    if np.linalg.cond(V) < 1e8:  # e^{A^T tau} = V e^{Lambda tau} V^-1, all lags at once
+        E = np.einsum("ik,tk,kj->tij", V, np.exp(np.outer(lags, lam)), np.linalg.inv(V)).real
+    else:  # a defective (critically damped) mode
+        E = np.stack([linalg.expm(A.T * tau) for tau in lags])
+    return np.einsum("ij,tji->ti", P, E)  # the diagonal of P e^{A^T tau}

@@ -1,5 +1,8 @@
 r"""Excitations beyond white noise, as filter coordinates appended to a :class:`jdpim.MDOFOscillator`.
 
+A one-degree-of-freedom oscillator (:class:`jdpim.VibroImpactOscillator`, :class:`jdpim.Oscillator`) is first
+lifted to the same description by :func:`as_mdof` (coordinate ``x``, its barrier a constraint ``x >= b``).
+
 Each function returns a new model whose last coordinates are a linear filter driven by the scene's white
 noise (``E[w(t) w(t+s)] = 2 D delta(s)``); the structure feels the filter's output through the augmented
 damping and stiffness matrices. DPIM and Monte Carlo carry the filter like any other coordinate, densities
@@ -16,8 +19,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._mdof import Barrier, MDOFOscillator
-from ._pytree import check_real
-from .systems import _number
+from ._models import AbstractOscillator, VibroImpactOscillator
+from ._pytree import check_number, check_real, concrete
 
 HARMONIC = "xh"  # the coordinate of a harmonic filter (its cosine)
 
@@ -45,12 +48,78 @@ def _block(model: MDOFOscillator, name: str, k: int) -> np.ndarray:
     return out
 
 
+def _cubic_damping(q, v, gamma):
+    """The force ``-gamma v^3`` of :class:`jdpim.VibroImpactOscillator`'s cubic damping, ``(1,)``."""
+    return -gamma * v**3
+
+
+def _oscillator_force(q, v, model):
+    """The force ``-g(x) - f(x, v)`` of a one-degree-of-freedom ``model``, ``(1,)``."""
+    return jnp.reshape(-model.restoring(q[0]) - model.damping(q[0], v[0]), (1,))
+
+
+def as_mdof(model: AbstractOscillator) -> MDOFOscillator:
+    r"""A one-degree-of-freedom oscillator as the :class:`jdpim.MDOFOscillator` with the same paths.
+
+    ``x'' + g(x) + f(x, x') = h . xi`` becomes ``M = [[1]]``, ``B = h`` (a row: the gains must not depend on
+    the state), the barrier the constraint ``x >= b`` with restitution ``r``; the coordinate keeps its name
+    ``x``, and paths start at the barrier where a scene gives no ``x0``, as for the oscillator itself. For
+    :class:`jdpim.VibroImpactOscillator` the linear terms are the matrices ``C = [[alpha]]``,
+    ``K = [[omega^2]]`` and the cubic damping a force with ``params = gamma``; for other oscillators
+    ``g`` and ``f`` are a force with ``params = model`` (the model's parameters stay traced leaves).
+
+    Examples:
+        >>> import jdpim
+        >>> lifted = jdpim.filters.as_mdof(jdpim.VibroImpactOscillator(alpha=0.1, gamma=None, omega=2.0))
+        >>> lifted.coordinates, lifted.stiffness.tolist()
+        (('x', 'v'), [[4.0]])
+    """
+    if not isinstance(model, AbstractOscillator):
+        raise TypeError(f"model must be a one-degree-of-freedom oscillator, got {type(model).__name__}")
+    zero = jnp.zeros(())
+    gains = jnp.reshape(jnp.asarray(model.gains(zero, zero)), (1, -1))
+    probe = jnp.asarray([0.7, -1.3])
+    moved = concrete(jnp.reshape(jnp.asarray(model.gains(probe[0], probe[1])), (1, -1)))
+    if moved is not None and concrete(gains) is not None and not np.array_equal(moved, concrete(gains)):
+        raise ValueError(
+            f"a filter needs additive noise, but {type(model).__name__}'s gains depend on the state "
+            f"({_numbers(concrete(gains))} at rest, {_numbers(moved)} at (x, v) = (0.7, -1.3))"
+        )
+    constraints = () if model.barrier is None else (Barrier((1.0,), model.barrier, model.r),)
+    barrier = None if model.barrier is None else concrete(model.barrier)
+    start = None if barrier is None else (float(barrier),)  # a scene without x0 starts at the barrier
+    gains = gains if concrete(gains) is None else np.asarray(concrete(gains), dtype=float)
+    common = {"mass": np.ones((1, 1)), "gains": gains, "constraints": constraints, "names": ("x",), "start": start}
+    if isinstance(model, VibroImpactOscillator):
+        damping = None if model.alpha is None else _one_by_one(model.alpha)
+        force = None if model.gamma is None else _cubic_damping
+        stiffness = _one_by_one(model.omega, power=2)
+        return MDOFOscillator(damping=damping, stiffness=stiffness, force=force, params=model.gamma, **common)
+    return MDOFOscillator(force=_oscillator_force, params=model, **common)
+
+
+def _one_by_one(value, power: int = 1):
+    """``[[value^power]]``: float64 NumPy where ``value`` is a number (as the matrices of a model built from
+    numbers), else traced."""
+    number = concrete(value)
+    if number is None:
+        return jnp.reshape(jnp.asarray(value) ** power, (1, 1))
+    return np.reshape(float(number) ** power, (1, 1))
+
+
+def _numbers(values) -> str:
+    """``values`` as ``[a, b, ...]`` with 6 significant digits."""
+    return "[" + ", ".join(f"{float(a):.6g}" for a in np.ravel(values)) + "]"
+
+
 def _structure(model) -> MDOFOscillator:
-    """``model`` if it is a :class:`jdpim.MDOFOscillator` (what a filter is appended to), else a ``TypeError``."""
+    """``model`` as the :class:`jdpim.MDOFOscillator` a filter is appended to (:func:`as_mdof` for one degree of
+    freedom), else a ``TypeError``."""
+    if isinstance(model, AbstractOscillator):
+        return as_mdof(model)
     if not isinstance(model, MDOFOscillator):
         raise TypeError(
-            f"model must be a jdpim.MDOFOscillator (one degree of freedom too: mass=[[1.0]], ...), "
-            f"got {type(model).__name__}"
+            f"model must be a jdpim.MDOFOscillator or a one-degree-of-freedom oscillator, got {type(model).__name__}"
         )
     return model
 
@@ -117,8 +186,8 @@ def kanai_tajimi(model: MDOFOscillator, omega_g: float = 15.6, zeta_g: float = 0
         ('x1', 'x2', 'xf', 'v1', 'v2', 'vf')
     """
     model = _structure(model)
-    wg = _number("omega_g", omega_g, low=0.0, low_open=True)
-    zg = _number("zeta_g", zeta_g, low=0.0, low_open=True)
+    wg = check_number("omega_g", omega_g, low=0.0, low_open=True)
+    zg = check_number("zeta_g", zeta_g, low=0.0, low_open=True)
     iota = _influence(model, influence)
     n = model.dimension
     m_iota = np.asarray(model.mass) @ iota
@@ -128,6 +197,60 @@ def kanai_tajimi(model: MDOFOscillator, omega_g: float = 15.6, zeta_g: float = 0
     gains = np.zeros((n + 1, 1))
     gains[n, 0] = -1.0
     return _augment(model, ("xf",), np.ones((1, 1)), damping, stiffness, gains)
+
+
+def clough_penzien(
+    model, omega_g: float = 15.6, zeta_g: float = 0.6, omega_f: float = 1.5, zeta_f: float = 0.6, influence=None
+) -> MDOFOscillator:
+    r"""``model`` shaken by a Clough-Penzien ground acceleration: Kanai-Tajimi with its low frequencies removed.
+
+    The Kanai-Tajimi filter ``xf`` of :func:`kanai_tajimi` (driven by ``-w``) gives ``a1 = -(2 zeta_g omega_g xf'
+    + omega_g^2 xf)``; a second filter ``xc'' + 2 zeta_f omega_f xc' + omega_f^2 xc = a1`` passes it through the
+    high-pass ``-omega^2 / (omega_f^2 - omega^2 + 2 i zeta_f omega_f omega)``, and the ground acceleration is
+    ``a_g = xc'' = a1 - 2 zeta_f omega_f xc' - omega_f^2 xc``, with the power spectral density
+
+    .. math::
+        S_{a_g}(\omega) = S_0\,\frac{\omega_g^4 + 4\zeta_g^2\omega_g^2\omega^2}
+                                     {(\omega_g^2 - \omega^2)^2 + 4\zeta_g^2\omega_g^2\omega^2}\,
+                          \frac{\omega^4}{(\omega_f^2 - \omega^2)^2 + 4\zeta_f^2\omega_f^2\omega^2},
+        \qquad S_0 = D / \pi \ \text{(two-sided)}.
+
+    It vanishes at ``omega = 0``, so the ground velocity and displacement stay bounded, unlike Kanai-Tajimi's.
+    The structure feels ``-M iota a_g``; coordinates ``xf`` and ``xc`` (velocities ``vf``, ``vc``) are appended. A
+    modulated noise (``jdpim.WhiteNoise(D, envelope=...)``) drives the filters: the ground motion is then the
+    response of the filters to ``e(t) w(t)``. The model's own gains are not used.
+
+    Args:
+        model: the structure, ``n`` coordinates (a one-degree-of-freedom oscillator is lifted by :func:`as_mdof`).
+        omega_g: the ground's frequency, rad/s, > 0.
+        zeta_g: the ground's damping ratio, > 0.
+        omega_f: the high-pass filter's frequency, rad/s, > 0 (about a tenth of ``omega_g``).
+        zeta_f: the high-pass filter's damping ratio, > 0.
+        influence: ``iota``, ``(n,)``: how each coordinate feels the ground (``None``: ones).
+
+    Examples:
+        >>> import jdpim
+        >>> jdpim.clough_penzien(jdpim.VibroImpactOscillator(), omega_f=1.0).coordinates
+        ('x', 'xf', 'xc', 'v', 'vf', 'vc')
+    """
+    model = _structure(model)
+    wg = check_number("omega_g", omega_g, low=0.0, low_open=True)
+    zg = check_number("zeta_g", zeta_g, low=0.0, low_open=True)
+    wf = check_number("omega_f", omega_f, low=0.0, low_open=True)
+    zf = check_number("zeta_f", zeta_f, low=0.0, low_open=True)
+    iota = _influence(model, influence)
+    n = model.dimension
+    m_iota = np.asarray(model.mass) @ iota
+    damping, stiffness = _block(model, "damping", 2), _block(model, "stiffness", 2)
+    for matrix, ground, high in ((damping, 2.0 * zg * wg, 2.0 * zf * wf), (stiffness, wg * wg, wf * wf)):
+        matrix[:n, n] = -ground * m_iota  # M q'' + C q' + K q = -M iota a_g
+        matrix[:n, n + 1] = -high * m_iota
+        matrix[n, n] = ground  # xf'' + ground xf = -w
+        matrix[n + 1, n] = ground  # xc'' + high xc = a1 = -ground xf
+        matrix[n + 1, n + 1] = high
+    gains = np.zeros((n + 2, 1))
+    gains[n, 0] = -1.0
+    return _augment(model, ("xf", "xc"), np.eye(2), damping, stiffness, gains)
 
 
 def first_order_filter(model: MDOFOscillator, a: float = 1.0) -> MDOFOscillator:
@@ -149,7 +272,7 @@ def first_order_filter(model: MDOFOscillator, a: float = 1.0) -> MDOFOscillator:
         ('x1', 'x2', 'xf', 'v1', 'v2', 'vf')
     """
     model = _structure(model)
-    rate = _number("a", a, low=0.0, low_open=True)
+    rate = check_number("a", a, low=0.0, low_open=True)
     n, m = model.dimension, model.n_sources
     B = np.asarray(model.gains, dtype=float)
     damping = _block(model, "damping", m)
@@ -179,8 +302,8 @@ def harmonic(model: MDOFOscillator, amplitude: float, frequency: float, directio
         (0.0, 0.0, 1.0)
     """
     model = _structure(model)
-    amp = _number("amplitude", amplitude)
-    w = _number("frequency", frequency, low=0.0, low_open=True)
+    amp = check_number("amplitude", amplitude)
+    w = check_number("frequency", frequency, low=0.0, low_open=True)
     n = model.dimension
     b = np.asarray(model.gains, dtype=float)[:, 0] if direction is None else np.asarray(direction, dtype=float)
     if b.shape != (n,):

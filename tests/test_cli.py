@@ -109,7 +109,7 @@ def test_an_absent_term_is_not_in_the_model(tmp_path, spelling):
         (
             {"kind": '"duffing"'},
             "s.toml: [model] kind: must be one of ['vibro_impact', 'mdof', 'impact_damper', 'pounding_frame', "
-            "'gear_pair'], got 'duffing'",
+            "'gear_pair', 'adjacent_buildings'], got 'duffing'",
         ),
         ({"D": "true"}, "s.toml: [noise] D: must be a number, got a boolean True"),
         ({"n_points": "1.5"}, "s.toml: [method] n_points: must be an integer, got a float 1.5"),
@@ -204,11 +204,17 @@ def test_one_point_and_scalar_grids():
     assert np.asarray(jdpim.kde(y, w, np.array([0.5]), 0.2, 0.0)).shape == (1,)
     assert float(jdpim.kde(y, w, 0.5, 0.2, 0.0)) == pytest.approx(full[1], rel=1e-6)
     res = jdpim.Result(
-        times=np.array([1.0]), states=np.stack([y, y], -1)[:, None], weights=w, barrier=0.0, method="monte_carlo"
+        times=np.array([1.0]),
+        states=np.stack([y, y], -1)[:, None],
+        weights=w,
+        barrier=0.0,
+        method="monte_carlo",
+        independent=True,
     )
     assert res.joint_pdf(("x", "v"), (0.5, np.array([0.1, 0.5])), 1.0).shape == (2,)
     with pytest.raises(ValueError, match="pdf_error of a sampling result needs independent samples"):
-        jdpim.Result(times=res.times, states=res.states, weights=w, barrier=0.0, method="dpim").pdf_error("x", 0.5, 1.0)
+        dpim = jdpim.Result(times=res.times, states=res.states, weights=w, barrier=0.0, method="dpim")
+        dpim.pdf_error("x", 0.5, 1.0)
 
 
 def test_no_stray_public_names():

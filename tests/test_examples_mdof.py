@@ -55,7 +55,7 @@ def test_pounding_frame_has_the_first_mode_asked_for():
         (lambda: jdpim.kanai_tajimi(jdpim.impact_damper(), zeta_g=-1.0), "zeta_g"),
         (lambda: jdpim.kanai_tajimi(jdpim.impact_damper(), influence=[1.0]), "influence must have 2 entries"),
         (lambda: jdpim.harmonic(jdpim.impact_damper(), 1.0, 0.0), "frequency"),
-        (lambda: jdpim.first_order_filter(jdpim.VibroImpactOscillator()), "must be a jdpim.MDOFOscillator"),
+        (lambda: jdpim.first_order_filter(jdpim.WhiteNoise()), "must be a jdpim.MDOFOscillator or a one-degree"),
         (lambda: jdpim.kanai_tajimi(jdpim.kanai_tajimi(jdpim.impact_damper())), "already has coordinates"),
     ],
 )

@@ -42,10 +42,10 @@ def test_reference_scene_defaults():
 
 def test_agrees_with_monte_carlo(reference):
     pi, mc = reference
-    assert pi.method == "path_integration" and pi.stderr is None and pi.times == SAVE_AT
+    assert pi.method == "path_integration" and pi.probability_stderr is None and pi.times == SAVE_AT
     assert pi.probability.shape == pi.grid_error.shape == (2, 3) and np.all(np.asarray(pi.lost_mass) == 0)
     p, err = np.asarray(pi.probability), np.asarray(pi.grid_error)
-    p_mc, se = np.asarray(mc.probability), np.asarray(mc.stderr)
+    p_mc, se = np.asarray(mc.probability), np.asarray(mc.probability_stderr)
     used = (p_mc > 0.01) & (p_mc < 0.9)
     assert used.sum() >= 4
     assert np.all(err[used] < 0.05)  # the grid error stated is small enough to make the comparison a test

@@ -78,7 +78,7 @@ def test_cpu_chunks_with_the_noise_drawn_inside_the_steps_are_large():
     """On a CPU, Monte Carlo with the noise drawn inside the steps takes chunks of up to ``NODES_CHUNK`` paths,
     with or without constraints; those where every device gets at least ``WIDE_CHUNK`` paths are wide (one batch
     of crossings per step). With the spectral forcing it keeps the small chunks."""
-    from jdpim._integrate import WIDE_CHUNK
+    from jdpim._engine.batches import WIDE_CHUNK
     from jdpim.methods._paths import CPU_CHUNK_BYTES, NODES_CHUNK, balanced_chunk, default_chunk_size
 
     small = CPU_CHUNK_BYTES // 4

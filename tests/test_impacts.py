@@ -14,7 +14,11 @@ import numpy as np
 import pytest
 
 import jdpim
-from jdpim._integrate import ImpactRule, _resolve_one, departure, first_in_lanes, integrate, locate_crossing
+from jdpim._engine.batches import first_in_lanes
+from jdpim._engine.locate import locate_crossing
+from jdpim._engine.resolve import resolve_one
+from jdpim._engine.sticking import departure
+from jdpim._integrate import ImpactRule, integrate
 
 
 @functools.partial(jax.jit, static_argnames=("rule", "n_save"))
@@ -114,7 +118,7 @@ def test_impact_map_energy_loss(r):
         x0, v0 = speed * jnp.sin(s * h), -speed * jnp.cos(s * h)  # the free path hits x = 0 at s h
         x1, v1 = x0 * jnp.cos(h) + v0 * jnp.sin(h), -x0 * jnp.sin(h) + v0 * jnp.cos(h)
         e = jnp.zeros((19, 3, 1))
-        (_, v_plus), theta, (x2, v2), _ = jax.vmap(lambda *a: _resolve_one(model, ImpactRule(), h, *a))(
+        (_, v_plus), theta, (x2, v2), _ = jax.vmap(lambda *a: resolve_one(model, ImpactRule(), h, *a))(
             (x0[:, None], v0[:, None]), jnp.zeros(19), (x1[:, None], v1[:, None]), jnp.full(19, -1), e
         )
         v_plus, x2, v2 = v_plus[:, 0], x2[:, 0], v2[:, 0]

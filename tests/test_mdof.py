@@ -392,7 +392,7 @@ def test_likelihood_ratio_of_several_degrees_of_freedom_matches_the_exact_deriva
     h, E = 1e-5, np.diag([1.0, 0.0])
     for name, (dK, dC) in zip(names, ((E, 0 * E), (0 * E, E)), strict=True):
         exact = (smoothed(K + h * dK, c * np.eye(2) + h * dC) - smoothed(K - h * dK, c * np.eye(2) - h * dC)) / (2 * h)
-        value, se = np.asarray(dp.value[name]), np.asarray(dp.stderr[name])
+        value, se = np.asarray(dp.value[name]), np.asarray(dp.value_stderr[name])
         assert np.all(np.abs(value - exact) < 4 * se), (name, np.max(np.abs(value - exact) / se))
         assert np.max(np.abs(exact)) > 5 * np.max(se)  # the check has power
 
@@ -408,7 +408,7 @@ def test_central_difference_of_several_degrees_of_freedom_matches_the_exact_deri
     grid = np.linspace(-0.8, 0.8, 17)
     method, est = jdpim.MonteCarlo(n_samples=20_000, seed=0), jdpim.CentralDifference(step=h)
     dp = jdpim.sensitivity(scene, ("stiffness[0,0]",), "x1", grid, method=method, bandwidth=sigma, estimator=est)
-    value, se = np.asarray(dp.value["stiffness[0,0]"]), np.asarray(dp.stderr["stiffness[0,0]"])
+    value, se = np.asarray(dp.value["stiffness[0,0]"]), np.asarray(dp.value_stderr["stiffness[0,0]"])
 
     def smoothed(k):
         s2 = D / (c * k) + sigma**2

@@ -162,3 +162,75 @@ def test_the_pipeline_warns_at_long_horizons_only():
     assert abs(d2 - cd) < 0.05 * abs(cd)
     with pytest.warns(jdpim.SensitivityWarning, match=MATCH):
         jax.grad(pdf)(jnp.float32(0.03), 50.0)
+
+
+JOINT_X, JOINT_V = jnp.array([Y - 0.05, Y, Y + 0.05]), jnp.array([-0.1, 0.0, 0.1])
+
+
+def _joint(res):
+    """The joint density at ``(Y, 0)`` from a 3 x 3 grid: forward mode checks all nine nodes (projected)."""
+    return res.joint_pdf(("x", "v"), (JOINT_X, JOINT_V), bandwidth=(H, H))[1, 1]
+
+
+@pytest.mark.parametrize("heavy", [True, False])
+@pytest.mark.parametrize("transform", ["jacfwd", "grad"])
+def test_joint_pdf_is_checked_in_both_modes(transform, heavy):
+    """The velocities are all 0 with zero tangents: the derivative is that of ``pdf`` times ``K_v(0) = 1 / (H
+    sqrt(2 pi))``."""
+    rows = _paths(heavy=heavy)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", jdpim.SensitivityWarning)
+        d = float(TRANSFORMS[transform](lambda a: _joint(_result(a, rows)))(jnp.float32(0.03)))
+    flagged = [w for w in caught if issubclass(w.category, jdpim.SensitivityWarning)]
+    exact = _exact("pdf", rows) / (H * np.sqrt(2 * np.pi))
+    if heavy:
+        assert flagged and all("carried by" in str(w.message) for w in flagged)
+        assert abs(d) > 100 * abs(_exact("pdf", _paths(heavy=False)) / (H * np.sqrt(2 * np.pi)))
+    else:
+        assert not flagged
+        np.testing.assert_allclose(d, exact, rtol=1e-4)
+
+
+def test_vmap_of_grad_checks_each_parameter_value():
+    """``jax.vmap(jax.grad(f))`` over alpha: the value whose derivative one path carries warns; a value where the
+    toy paths have moved that path off the kernel (``alpha = 0.05``: ``x`` shifted by 200) is exact."""
+    rows = _paths(heavy=True)
+    f = functools.partial(lambda a, rows: FUNCTIONALS["pdf"](_result(a, rows)), rows=rows)
+    with pytest.warns(jdpim.SensitivityWarning, match=MATCH) as caught:
+        d = np.asarray(jax.vmap(jax.grad(f))(jnp.array([0.03, 0.05], jnp.float32)))
+    assert len([w for w in caught if issubclass(w.category, jdpim.SensitivityWarning)]) == 1
+    moved = np.asarray(rows).copy()
+    moved[:, 0] += 0.02 * moved[:, 1]
+    np.testing.assert_allclose(d[1], _exact("pdf", jnp.asarray(moved)), rtol=1e-3, atol=1e-6)
+    assert abs(d[0]) > 100 * abs(_exact("pdf", _paths(heavy=False)))
+
+
+P_MANY = 40  # differentiated scalars, beyond MAX_DIRECTIONS: tangents by plain AD, checked along projections
+
+
+def _many_result(theta, rows):
+    """A result whose paths move with ``mean(theta)`` (``P_MANY`` scalars) as ``_result``'s move with alpha."""
+    states = probed(
+        lambda th, r: _toy_run(jdpim.Scene(jdpim.VibroImpactOscillator(alpha=jnp.mean(th))), r), theta, rows
+    )
+    return jdpim.Result(times=(1.0,), states=states, weights=jnp.full((N,), 1.0 / N), barrier=0.0)
+
+
+@pytest.mark.parametrize("heavy", [True, False])
+@pytest.mark.parametrize("transform", ["grad", "jacrev"])
+def test_many_parameters_are_checked_along_projections(transform, heavy):
+    """Reverse mode over more than ``MAX_DIRECTIONS`` scalars (forward mode is checked by ``Result.pdf`` itself)."""
+    from jdpim.methods._ad_guard import MAX_DIRECTIONS
+
+    assert P_MANY > MAX_DIRECTIONS
+    rows = _paths(heavy=heavy)
+    theta = jnp.full((P_MANY,), 0.03, jnp.float32)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", jdpim.SensitivityWarning)
+        d = np.asarray(TRANSFORMS[transform](lambda th: FUNCTIONALS["pdf"](_many_result(th, rows)))(theta))
+    flagged = [w for w in caught if issubclass(w.category, jdpim.SensitivityWarning)]
+    if heavy:
+        assert flagged and all("carried by" in str(w.message) for w in flagged)
+    else:
+        assert not flagged
+        np.testing.assert_allclose(d, np.full(P_MANY, _exact("pdf", rows) / P_MANY), rtol=1e-4)

@@ -109,11 +109,11 @@ REFUSED = {
         ValueError,
         r"x0 starts the harmonic filter coordinate xh at 0, which scales the harmonic force by 0: give x0\[2\] = 1.0",
     ),
-    "filter-of-one-dof-oscillator": (
-        lambda: jdpim.kanai_tajimi(jdpim.VibroImpactOscillator()),
-        TypeError,
-        r"model must be a jdpim.MDOFOscillator \(one degree of freedom too: mass=\[\[1.0\]\], ...\), "
-        r"got VibroImpactOscillator",
+    "filter-of-multiplicative-noise": (
+        lambda: jdpim.kanai_tajimi(jdpim.Oscillator(h=lambda x, v, p: jnp.array([1.0 + x]))),
+        ValueError,
+        r"a filter needs additive noise, but Oscillator's gains depend on the state \(\[1\] at rest, \[1.7\] at "
+        r"\(x, v\) = \(0.7, -1.3\)\)",
     ),
     "oscillator-g-wrong-shape": (
         lambda: jdpim.Oscillator(g=lambda x, p: jnp.stack([x, x])),

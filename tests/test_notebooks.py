@@ -8,7 +8,7 @@ from nbclient import NotebookClient
 
 NOTEBOOKS = sorted((pathlib.Path(__file__).parents[1] / "notebooks").glob("*.ipynb"))
 COLAB = "https://colab.research.google.com/github/jdpim/jdpim/blob/main/notebooks/"
-WITH_BADGE = ("accuracy", "impact_damper", "paper", "quickstart", "reliability", "sensitivities")
+WITH_BADGE = ("accuracy", "design", "impact_damper", "paper", "pounding", "quickstart", "reliability", "sensitivities")
 
 
 def execute(path, workdir):

@@ -181,11 +181,34 @@ def test_first_passage_and_impact_statistics_round_trip(tmp_path):
     assert_same(round_trip(st, tmp_path / "impacts.npz")[0], st)
 
 
+def test_response_statistics_and_fragility_round_trip(tmp_path):
+    states = np.random.default_rng(0).normal(size=(200, 64, 2))
+    mc = jdpim.Result(
+        times=tuple(0.5 * np.arange(64)),
+        states=states,
+        weights=np.full(200, 1 / 200),
+        method="monte_carlo",
+        independent=True,
+    )
+    for stat in (
+        jdpim.response_moments(mc, "x"),
+        jdpim.response_psd(mc, "x", segment=16),
+        jdpim.response_autocorrelation(mc, "x", max_lag=4),
+    ):
+        back, _ = round_trip(stat, tmp_path / f"{type(stat).__name__}.npz")
+        assert type(back) is type(stat)
+        assert_same(back, stat)
+    noise = jdpim.WhiteNoise(0.03, envelope=jdpim.Jennings(t1=1.0, t2=3.0, c=0.5))
+    scene = jdpim.Scene(jdpim.VibroImpactOscillator(), noise, t_end=5.0)
+    back, meta = round_trip(mc, tmp_path / "scene.npz", scene=scene)
+    assert meta.scene == scene
+
+
 def test_sensitivity_round_trip(tmp_path, small_sensitivity):
     scene, method, dp = small_sensitivity
     back, meta = round_trip(dp, tmp_path / "dp.npz", scene=scene, method=method)
     assert_same(back, dp)
-    assert back.estimators == dp.estimators and back.t == dp.t and dict(back).keys() == dp.keys()
+    assert back.estimators == dp.estimators and back.times == dp.times and dict(back).keys() == dp.keys()
     assert_same(meta.scene, scene)
 
 
@@ -231,6 +254,19 @@ def test_files_of_other_versions_warn_or_fail_in_one_line(tmp_path):
         jdpim.load(path)
 
 
+def test_results_of_files_before_the_independent_field_take_their_methods(tmp_path):
+    """A ``Result`` saved without ``independent`` loads with its method's: Monte Carlo's have standard errors."""
+    states = np.random.default_rng(1).normal(size=(8, 1, 2))
+    for method, independent in (("monte_carlo", True), ("dpim", False)):
+        res = jdpim.Result(
+            times=(1.0,), states=states, weights=np.full(8, 1 / 8), method=method, independent=independent
+        )
+        path = tmp_path / f"{method}.npz"
+        res.save(path)
+        rewrite(path, lambda doc: doc["result"]["fields"].pop("independent"))
+        assert jdpim.load(path).independent is independent
+
+
 def test_loading_runs_no_code_from_the_file(tmp_path):
     """Only jdpim's own classes are rebuilt, and pickled arrays are refused."""
     path = tmp_path / "fp.npz"
@@ -251,9 +287,9 @@ def test_loading_runs_no_code_from_the_file(tmp_path):
         jdpim.load(tmp_path / "plain.npz")
     with zipfile.ZipFile(path) as z:  # an open archive: one .npy per array and the JSON document
         assert sorted(z.namelist()) == sorted(
-            f"{k}.npy" for k in ("jdpim", "result/levels", "result/probability", "result/stderr", "result/lost_mass",
-                                 "result/derivative/alpha", "result/derivative/D", "result/derivative_stderr/alpha",
-                                 "result/derivative_stderr/D")
+            f"{k}.npy" for k in ("jdpim", "result/levels", "result/probability", "result/probability_stderr",
+                                 "result/lost_mass", "result/derivative/alpha", "result/derivative/D",
+                                 "result/derivative_stderr/alpha", "result/derivative_stderr/D")
         )  # fmt: skip
 
 
@@ -293,16 +329,24 @@ def test_to_xarray_labels_every_array(tmp_path, monkeypatch):
     )
     assert ds.attrs["barrier_x1"] == -0.2
     assert isinstance(ds, xr.Dataset)
+    values = np.arange(12.0).reshape(3, 2, 2)
+    mean = values.mean(axis=0)
+    tracked = jdpim.tracking.Tracked((1.0, 2.0), values, np.full(3, 1 / 3), mean, mean / 10, "monte_carlo")
+    assert_same(round_trip(tracked, tmp_path / "tracked.npz")[0], tracked)
+    ds = tracked.to_xarray()
+    assert ds["values"].dims == ("path", "time", "component") and ds["mean_stderr"].dims == ("time", "component")
     monkeypatch.setitem(sys.modules, "xarray", None)  # as if xarray were not installed
     with pytest.raises(ImportError, match=r"pip install jdpim\[xarray\]"):
         res.to_xarray()
 
 
 def test_the_docs_examples_run(tmp_path, monkeypatch):
-    """The code blocks of docs/persistence.md, in order, in a fresh folder."""
+    """The code blocks of docs/persistence.md, in order, in a fresh folder (all but the cluster job's script, a run
+    of 10^8 paths)."""
     page = pathlib.Path(__file__).parent.parent / "docs" / "persistence.md"
     blocks = re.findall(r"```python\n(.*?)```", page.read_text(), flags=re.S)
-    assert len(blocks) == 2
+    blocks = [code for code in blocks if not code.startswith("# reference.py")]
+    assert len(blocks) == 3
     monkeypatch.chdir(tmp_path)
     for code in blocks:
         exec(compile(code, str(page), "exec"), {})

@@ -42,12 +42,12 @@ def test_path_integration_matches_the_exact_derivative(elastic, stationary):
     t = np.inf if stationary else T
     kw = {"method": dataclasses.replace(SETTINGS, stationary=True)} if stationary else {"t": T, "method": SETTINGS}
     out = jdpim.sensitivity(elastic, ("alpha", "D"), "x", XS, bandwidth=H, **kw)
-    assert out.method == "path_integration" and out.t == t
+    assert out.method == "path_integration" and out.times == (t,)
     for name in ("alpha", "D"):
         ref = _exact_derivative(name, t)
         rel = np.linalg.norm(out[name] - ref) / np.linalg.norm(ref)
         assert rel < 5e-3, (name, rel)
-        assert np.all(np.asarray(out.stderr[name]) == 0.0)  # no sampling error
+        assert np.all(np.asarray(out.value_stderr[name]) == 0.0)  # no sampling error
         assert out.estimators[name].x_max is not None and out.estimators[name].order == 4
 
 
@@ -105,14 +105,14 @@ def test_an_unresolved_diffusion_step_is_flagged_for_d(elastic):
     """dp/dD needs one step's diffusion to span enough velocity nodes (measured: 4 % error at 0.67 spacings)."""
     from types import SimpleNamespace
 
-    from jdpim.sensitivities._path_integration import _check_noise_resolution
+    from jdpim.sensitivities._path_integration import check_noise_resolution
 
     nodes = SimpleNamespace(
         x=np.linspace(0.0, 2.0, 5, dtype=np.float32), v=np.linspace(-1.0, 1.0, 21, dtype=np.float32)
     )
-    _check_noise_resolution(elastic, jdpim.PathIntegration(tau=0.2), nodes)  # sqrt(0.05 * 0.2) = 0.1: 1 spacing
+    check_noise_resolution(elastic, jdpim.PathIntegration(tau=0.2), nodes)  # sqrt(0.05 * 0.2) = 0.1: 1 spacing
     with pytest.warns(jdpim.SensitivityWarning, match="raise n_v or tau"):
-        _check_noise_resolution(elastic, jdpim.PathIntegration(tau=0.1), nodes)  # 0.71 spacings
+        check_noise_resolution(elastic, jdpim.PathIntegration(tau=0.1), nodes)  # 0.71 spacings
 
 
 @pytest.mark.slow
@@ -186,9 +186,9 @@ def test_short_horizons_default_to_an_earlier_finer_start():
 
 def test_short_horizons_after_the_point_start_are_flagged():
     """The linearised start at t0 moved dp/dgamma and dp/dr by 5-8 % at t = 5 (reference scene, t0 = 1)."""
-    from jdpim.sensitivities._path_integration import _check_start
+    from jdpim.sensitivities._path_integration import check_start
 
-    _check_start(10.0, jdpim.PathIntegration())
-    _check_start(2.5, jdpim.PathIntegration(t0=0.25, tau=0.025))
+    check_start(10.0, jdpim.PathIntegration())
+    check_start(2.5, jdpim.PathIntegration(t0=0.25, tau=0.025))
     with pytest.warns(jdpim.SensitivityWarning, match="t0=0.25"):
-        _check_start(5.0, jdpim.PathIntegration())
+        check_start(5.0, jdpim.PathIntegration())

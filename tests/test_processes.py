@@ -37,7 +37,7 @@ def compute() -> dict:
         "pdf": np.asarray(mc.pdf("x", grid, 2.0)),
         "pdf_error": np.asarray(mc.pdf_error("x", grid, 2.0)),
         "first_passage": np.asarray(fp.probability),
-        "stderr": np.asarray(fp.stderr),
+        "stderr": np.asarray(fp.probability_stderr),
     }
 
 

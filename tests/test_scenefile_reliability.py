@@ -74,7 +74,7 @@ def test_run_stores_first_passage_equal_to_a_direct_call_and_leaves_the_rest_as_
         np.testing.assert_array_equal(arrays[f"first_passage_{name}_probability"], fp.probability)
         np.testing.assert_array_equal(arrays[f"first_passage_{name}_lost_mass"], fp.lost_mass)
         if name == "monte_carlo":
-            np.testing.assert_array_equal(arrays[f"first_passage_{name}_stderr"], fp.stderr)
+            np.testing.assert_array_equal(arrays[f"first_passage_{name}_stderr"], fp.probability_stderr)
     assert 0.0 < arrays["first_passage_monte_carlo_probability"][-1, -1] < 1.0  # a level that tells something
 
     # the report: a table per method, a row per saved time, p ± se for Monte Carlo

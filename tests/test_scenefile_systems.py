@@ -129,7 +129,7 @@ def test_a_derived_quantity_or_its_magnitude_is_a_reliability_quantity(tmp_path)
         (
             'kind = "damper"',
             "s.toml: [model] kind: must be one of ['vibro_impact', 'mdof', 'impact_damper', 'pounding_frame', "
-            "'gear_pair'], got 'damper'",
+            "'gear_pair', 'adjacent_buildings'], got 'damper'",
         ),
         (
             'kind = "vibro_impact"\nr = 0.9\n[[model.filters]]\nkind = "first_order"',
@@ -137,7 +137,8 @@ def test_a_derived_quantity_or_its_magnitude_is_a_reliability_quantity(tmp_path)
         ),
         (
             'kind = "impact_damper"\n[[model.filters]]\nkind = "white"',
-            "s.toml: [model] filters[0].kind: must be one of ['kanai_tajimi', 'first_order', 'harmonic'], got 'white'",
+            "s.toml: [model] filters[0].kind: must be one of ['kanai_tajimi', 'clough_penzien', 'first_order', "
+            "'harmonic'], got 'white'",
         ),
         (
             'kind = "impact_damper"\n[[model.filters]]\nkind = "first_order"\na = 0.0',

@@ -1,5 +1,5 @@
-"""Values of the impact resolution stored once on a CPU (``_integrate._stored``): exact, with derivatives passed
-through, and without a bit of difference in the states."""
+"""Values of the impact resolution stored once on a CPU (``jdpim._engine.elementwise.stored``): exact, with
+derivatives passed through, and without a bit of difference in the states."""
 
 import jax
 import jax.numpy as jnp
@@ -8,7 +8,7 @@ import pytest
 from test_wide_resolution import SCENES
 
 import jdpim
-from jdpim import _integrate
+from jdpim._engine import elementwise, locate, resolve
 
 
 @pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64, jnp.int32])
@@ -20,16 +20,16 @@ def test_stored_is_the_value_itself(dtype):
         else:
             info = jnp.iinfo(dtype)
             x = jnp.array([info.min, info.max, -1, 0, 7], dtype)
-        y = jax.jit(jax.vmap(_integrate._stored))(x)
+        y = jax.jit(jax.vmap(elementwise.stored))(x)
         assert y.dtype == x.dtype
         np.testing.assert_array_equal(np.asarray(y).view(np.uint8), np.asarray(x).view(np.uint8))
 
 
 def test_stored_passes_derivatives_through():
     x = jnp.array([-2.0, 0.0, 3.0])
-    _, tangent = jax.jvp(_integrate._stored, (x,), (jnp.array([1.0, -2.0, 0.5]),))
+    _, tangent = jax.jvp(elementwise.stored, (x,), (jnp.array([1.0, -2.0, 0.5]),))
     np.testing.assert_array_equal(tangent, [1.0, -2.0, 0.5])
-    np.testing.assert_array_equal(jax.grad(lambda x: jnp.sum(_integrate._stored(x) ** 2))(x), 2 * x)
+    np.testing.assert_array_equal(jax.grad(lambda x: jnp.sum(elementwise.stored(x) ** 2))(x), 2 * x)
 
 
 def _one_dof():
@@ -45,7 +45,8 @@ def test_storing_changes_no_state(name, monkeypatch):
     scene = _one_dof() if name == "one degree of freedom" else SCENES[name]()
     method = jdpim.MonteCarlo(n_samples=32, seed=5)
     stored = np.asarray(jdpim.solve(scene, method).states)
-    monkeypatch.setattr(_integrate, "_stored", lambda x: x)
+    for module in (locate, resolve):  # every user of the stored values
+        monkeypatch.setattr(module, "stored", lambda x: x)
     jax.clear_caches()
     plain = np.asarray(jdpim.solve(scene, method).states)
     assert np.all(np.isfinite(stored))

@@ -60,7 +60,7 @@ def test_sensitivity_passes_through_jit(scene):
     with pytest.warns(jdpim.SensitivityWarning, match="standard error"):  # 32 points: a large sampling error
         out = jdpim.sensitivity(scene, ("alpha",), "x", GRID, t=2.0, method=jdpim.DPIM(n_points=32))
     again = jax.jit(lambda s: s)(out)
-    assert isinstance(again, jdpim.Sensitivity) and again.t == out.t and again.method == out.method
+    assert isinstance(again, jdpim.Sensitivity) and again.times == out.times and again.method == out.method
     np.testing.assert_allclose(np.asarray(again["alpha"]), np.asarray(out["alpha"]))
     doubled = jax.jit(lambda s: jax.tree.map(lambda a: 2 * a, s))(out)
     np.testing.assert_allclose(np.asarray(doubled["alpha"]), 2 * np.asarray(out["alpha"]), rtol=1e-6)

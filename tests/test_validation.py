@@ -25,7 +25,12 @@ def result():
     """A small result built directly (no simulation): 4 paths, saved at t = 1 and 2."""
     states = np.stack([np.linspace(0.1, 1.0, 8).reshape(4, 2), np.linspace(-1.0, 1.0, 8).reshape(4, 2)], axis=-1)
     return jdpim.Result(
-        times=np.array([1.0, 2.0]), states=states, weights=np.full(4, 0.25), barrier=0.0, method="monte_carlo"
+        times=np.array([1.0, 2.0]),
+        states=states,
+        weights=np.full(4, 0.25),
+        barrier=0.0,
+        method="monte_carlo",
+        independent=True,
     )
 
 

@@ -7,12 +7,13 @@ import numpy as np
 import pytest
 
 import jdpim
-from jdpim import _integrate
+from jdpim._engine import batches, elementwise
 
 
 def _states(scene, n, wide, monkeypatch, branch_free=True, **method):
-    monkeypatch.setattr(_integrate, "WIDE_CHUNK", 64 if wide else 2**62)
-    monkeypatch.setattr(_integrate, "on_cpu", lambda: not branch_free)
+    monkeypatch.setattr(batches, "WIDE_CHUNK", 64 if wide else 2**62)
+    for module in (batches, elementwise):
+        monkeypatch.setattr(module, "on_cpu", lambda: not branch_free)
     jax.clear_caches()  # the threshold is read when the step is traced
     res = jdpim.solve(scene, jdpim.MonteCarlo(n_samples=n, seed=3, chunk_size=n, **method))
     return np.asarray(res.states)
@@ -48,34 +49,45 @@ SCENES = {
 }
 
 
+@pytest.fixture(scope="module")
+def lane_states():
+    """The lane resolution's states of each scene, computed once for the module (a scene checked both ways of
+    running the wide resolution compares both with the same lanes)."""
+    return {}
+
+
 @pytest.mark.parametrize(
     "name, branch_free", [(name, True) for name in SCENES] + [("all cross at once", False), ("impact damper", False)]
 )
-def test_wide_resolution_gives_the_lane_states(name, branch_free, monkeypatch):
+def test_wide_resolution_gives_the_lane_states(name, branch_free, monkeypatch, lane_states):
     scene = SCENES[name]()
     wide = _states(scene, 256, True, monkeypatch, branch_free)
-    lanes = _states(scene, 256, False, monkeypatch)
+    if name not in lane_states:
+        lane_states[name] = _states(scene, 256, False, monkeypatch)
+    lanes = lane_states[name]
     assert np.all(np.isfinite(wide))
     np.testing.assert_allclose(wide, lanes, rtol=0, atol=1e-5)
 
 
 def test_reverse_mode_through_the_wide_resolution(monkeypatch):
-    """``jax.grad`` of E[x^2] at t = 0.5 s with respect to the restitution, through the wide resolution (64 paths
-    from the barrier's side, every one crossing at once, so the lanes serve most of them too), against central
-    differences of the same paths."""
-    monkeypatch.setattr(_integrate, "WIDE_CHUNK", 16)
-    monkeypatch.setattr(_integrate, "on_cpu", lambda: False)
+    """Reverse mode (``jax.value_and_grad``) of E[x^2] at t = 0.5 s with respect to the restitution, through the
+    wide resolution (64 paths from the barrier's side, every one crossing at once, so the lanes serve most of them
+    too), against central differences of the same paths; one program gives the values and the derivative."""
+    monkeypatch.setattr(batches, "WIDE_CHUNK", 16)
+    for module in (batches, elementwise):
+        monkeypatch.setattr(module, "on_cpu", lambda: False)
     jax.clear_caches()
     scene = _one_dof(jdpim.GaussianNodes(), t_end=0.5, x0=1e-3, v0=-1.0)
 
     @jax.jit
+    @jax.value_and_grad
     def second_moment(r):
         s = scene.replace(model=scene.model.replace(r=r))
         return jdpim.solve(s, jdpim.MonteCarlo(n_samples=64, seed=1, chunk_size=64)).moment("x", 2, 0.5)
 
     step = 1e-3
-    central = (second_moment(0.98 + step) - second_moment(0.98 - step)) / (2 * step)
-    np.testing.assert_allclose(float(jax.grad(second_moment)(0.98)), float(central), rtol=2e-3)
+    central = (second_moment(0.98 + step)[0] - second_moment(0.98 - step)[0]) / (2 * step)
+    np.testing.assert_allclose(float(second_moment(0.98)[1]), float(central), rtol=2e-3)
 
 
 @pytest.mark.parametrize(
@@ -84,4 +96,4 @@ def test_reverse_mode_through_the_wide_resolution(monkeypatch):
 )
 def test_batch_rows_are_a_multiple_of_eight_above_it(n, wide, rows):
     """Batches above ``BATCH_ROWS`` rows are rounded up to a multiple of it (odd ones ran 2x slower on a CPU)."""
-    assert _integrate.batch_rows(n, wide) == rows
+    assert batches.batch_rows(n, wide) == rows

@@ -82,7 +82,7 @@ def _row(t, name, estimator, n, repeats):
         out, warned = call()
         times.append(time.perf_counter() - t0)
     ref = _reference(name, t)
-    value, err = np.asarray(out[name], float), np.asarray(out.stderr[name], float)
+    value, err = np.asarray(out[name], float), np.asarray(out.value_stderr[name], float)
     scale = np.linalg.norm(ref)
     return {
         "t": t,

@@ -47,10 +47,14 @@ numbers (default: at rest at the model's start, 0 but for a harmonic filter), ``
 coordinates whose marginals are stored (default: all of ``model.coordinates``) and ``[output] joint`` pairs of
 them (``[["x1", "x2"]]``; default: none).
 
-``kind`` may also name an example system, ``"impact_damper"``, ``"pounding_frame"`` or ``"gear_pair"``, whose
-function's arguments are the table's keys (each optional). Models of several degrees of freedom take filters,
-``[[model.filters]]`` with ``kind`` one of ``"kanai_tajimi"``, ``"first_order"``, ``"harmonic"`` and the
-function's arguments, appended in order. ``[output] derived`` names linear combinations of coordinates
+``kind`` may also name an example system, ``"impact_damper"``, ``"pounding_frame"``, ``"gear_pair"`` or
+``"adjacent_buildings"``, whose function's arguments are the table's keys (each optional; the pairs of
+``adjacent_buildings`` one value or an array of two). Models of several degrees of freedom take filters,
+``[[model.filters]]`` with ``kind`` one of ``"kanai_tajimi"``, ``"clough_penzien"``, ``"first_order"``,
+``"harmonic"`` and the function's arguments, appended in order. ``[noise] envelope`` modulates the noise
+(``{ kind = "shinozuka_sato", b1 = 0.1, b2 = 0.5 }`` or ``{ kind = "jennings", t1 = 2.0, t2 = 6.0, c = 0.5 }``),
+and a ``[fragility]`` table (``quantity``, ``level``, ``intensities``, ``reference``, ``confidence``) adds
+``jdpim.fragility`` by the file's Monte Carlo method. ``[output] derived`` names linear combinations of coordinates
 (``drift = {x2 = 1.0, x1 = -1.0}``) whose marginals are stored and which ``[reliability] quantity`` may name.
 
 Every error names the file and the key (``scene.toml: [model] r: must lie in [0, 1], got 1.5``,
@@ -73,9 +77,20 @@ else:  # pragma: no cover - Python 3.10
     import tomli as tomllib
 
 NONE = "none"  # the TOML spelling of "this term is absent"
-EXAMPLES = ("impact_damper", "pounding_frame", "gear_pair")  # jdpim's example systems, by their function's name
+EXAMPLES = (
+    "impact_damper",
+    "pounding_frame",
+    "gear_pair",
+    "adjacent_buildings",
+)  # jdpim's example systems, by their function's name
 KINDS = ("vibro_impact", "mdof", *EXAMPLES)
-FILTERS = ("kanai_tajimi", "first_order", "harmonic")  # [[model.filters]] kind -> jdpim.kanai_tajimi, ...
+FILTERS = (
+    "kanai_tajimi",
+    "clough_penzien",
+    "first_order",
+    "harmonic",
+)  # [[model.filters]] kind -> jdpim.kanai_tajimi, ...
+ENVELOPES = {"shinozuka_sato": "ShinozukaSato", "jennings": "Jennings"}  # [noise] envelope kind -> jdpim class
 METHODS = ("dpim", "monte_carlo")
 FORCINGS = ("nodes", "spectral")  # Monte Carlo's forcing: Gaussian values at the RK4 nodes, or DPIM's spectral one
 DENSITIES = ("x", "v", "joint")  # [output] densities of one degree of freedom
@@ -184,6 +199,19 @@ class SceneFile:
     outputs: Outputs
     table: dict
     reliability: Reliability | None = None
+    fragility: FragilityCurve | None = None
+
+
+@dataclasses.dataclass(frozen=True)
+class FragilityCurve:
+    """``[fragility]``: ``jdpim.fragility`` of ``quantity`` (as in :class:`Reliability`) above ``level`` at the
+    intensity measures ``intensities`` (``I`` floats), in units of ``reference``, with intervals at ``confidence``."""
+
+    quantity: str | Linear | Magnitude
+    level: float
+    intensities: tuple[float, ...]
+    reference: float = 1.0
+    confidence: float = 0.95
 
 
 _MODEL_KEYS = {
@@ -192,23 +220,28 @@ _MODEL_KEYS = {
     "impact_damper": {"kind", "mass_ratio", "frequency", "damping_ratio", "clearance", "r", "filters"},
     "pounding_frame": {"kind", "n_storeys", "frequency", "damping_ratio", "gap", "r", "storey", "filters"},
     "gear_pair": {"kind", "mass_ratio", "drag", "bearing_damping", "backlash", "r", "filters"},
+    "adjacent_buildings": {"kind", "n_storeys", "frequency", "damping_ratio", "mass", "gap", "r", "filters"},
 }
+_PAIR_KEYS = {"n_storeys", "frequency", "damping_ratio", "mass"}  # adjacent_buildings: one value for both, or two
 _INTEGER_KEYS = {"n_storeys", "storey"}  # integers >= 1 of the example systems; every other key is a number
 _CONSTRAINT_KEYS = {"normal", "position", "r"}
 _FILTER_KEYS = {
     "kanai_tajimi": {"kind", "omega_g", "zeta_g", "influence"},
+    "clough_penzien": {"kind", "omega_g", "zeta_g", "omega_f", "zeta_f", "influence"},
     "first_order": {"kind", "a"},
     "harmonic": {"kind", "amplitude", "frequency", "direction"},
 }
 _SCHEMA = {
     "model": set().union(*_MODEL_KEYS.values()),  # checked against the kind's keys once the kind is known
-    "noise": {"D"},
+    "noise": {"D", "envelope"},
     "time": {"t_end", "dt", "save_at"},
     "initial": {"x0", "v0"},
     "method": {"name", "n_points", "n_samples", "seed", "forcing"},
     "output": {"densities", "joint", "derived", "states", "figures", "n_grid"},
     "reliability": {"quantity", "levels"},
+    "fragility": {"quantity", "level", "intensities", "reference", "confidence"},
 }
+_ENVELOPE_KEYS = {"shinozuka_sato": {"kind", "b1", "b2"}, "jennings": {"kind", "t1", "t2", "c"}}
 _REQUIRED = ("model", "noise", "time", "method")
 
 
@@ -437,20 +470,62 @@ def _example(m: _Reader, kind: str):
     import jdpim
 
     build = getattr(jdpim, kind)
+    pairs = _PAIR_KEYS if kind == "adjacent_buildings" else set()
     args = {}
     for key, par in inspect.signature(build).parameters.items():
-        if key in _INTEGER_KEYS:
+        if key in pairs and isinstance(m.table.get(key, par.default), (list, tuple)):
+            args[key] = _pair(m, key, par.default)
+        elif key in _INTEGER_KEYS:
             given = m.table.get(key, par.default)
             args[key] = None if given is None else m.integer(key, par.default, low=1)
         else:
-            args[key] = m.number(key, par.default)
+            args[key] = m.number(key, par.default, allow_none=kind == "adjacent_buildings" and key == "gap")
     try:
         model = build(**args)
     except (ValueError, TypeError) as err:
         raise _library_error(m.path, err, "model") from None
     if kind == "pounding_frame" and args["storey"] is None:
         args["storey"] = args["n_storeys"]  # the top storey pounds by default
-    return model, {"kind": kind, **args}
+    return model, {
+        "kind": kind,
+        **{k: NONE if v is None else list(v) if isinstance(v, tuple) else v for k, v in args.items()},
+    }
+
+
+def _pair(m: _Reader, key: str, default) -> tuple:
+    """``key`` of ``adjacent_buildings`` as two values, building ``a``'s and ``b``'s (an array of two; integers
+    for ``n_storeys``)."""
+    value = m.table.get(key, default)
+    if len(value) != 2:
+        m.fail(key, f"must be one value for both buildings or an array of two (building a, building b), got {value!r}")
+    if key in _INTEGER_KEYS:
+        for i, v in enumerate(value):
+            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+                m.fail(f"{key}[{i}]", f"must be an integer >= 1, got {_toml_type(v)} {v!r}")
+        return tuple(value)
+    return tuple(m.real(f"{key}[{i}]", v) for i, v in enumerate(value))
+
+
+def _envelope(noise: _Reader):
+    """``[noise] envelope`` (``{ kind = "shinozuka_sato", b1 = 0.1, b2 = 0.5 }`` or ``{ kind = "jennings", t1, t2,
+    c }``) as ``jdpim.ShinozukaSato`` or ``jdpim.Jennings``, and its table with the defaults filled in; ``None``
+    (stationary noise) where the key is absent."""
+    import jdpim
+
+    table = noise.table.get("envelope")
+    if table is None:
+        return None, None
+    e = _Reader(noise.path, "noise", table, None, prefix="envelope.")
+    kind = table.get("kind")
+    if kind not in ENVELOPES:
+        e.fail("kind", f"must be one of {list(ENVELOPES)}, got {kind!r}")
+    e.only(_ENVELOPE_KEYS[kind])
+    cls = getattr(jdpim, ENVELOPES[kind])
+    args = {f.name: e.number(f.name, f.default) for f in dataclasses.fields(cls)}
+    try:
+        return cls(**args), {"kind": kind, **args}
+    except (ValueError, TypeError) as err:
+        raise _library_error(noise.path, err, "noise", e.prefix) from None
 
 
 def _filters(m: _Reader, model):
@@ -522,12 +597,9 @@ def _intensity(noise: _Reader, n_sources: int):
     return D
 
 
-def _reliability(r: _Reader, scene, derived: tuple[Linear, ...] = ()) -> Reliability:
-    """``[reliability]`` of ``scene``: a coordinate of its model, a quantity of ``derived`` or ``"|q|"`` of either,
-    and levels above the coordinate's barrier (the library's check, ``jdpim.first_passage``'s message under the
-    key) or, for a magnitude, above 0."""
-    from jdpim.reliability._first_passage import _levels
-
+def _quantity(r: _Reader, scene, derived: tuple[Linear, ...]) -> tuple:
+    """``quantity`` of ``[reliability]`` or ``[fragility]``: ``(name, two_sided, named)``, a coordinate of the
+    model or a quantity of ``derived`` (``named``: them by name), ``two_sided`` for ``"|q|"``."""
     coords, named = scene.model.coordinates, {q.name: q for q in derived}
     text = r.table.get("quantity")
     if text is None:
@@ -542,6 +614,32 @@ def _reliability(r: _Reader, scene, derived: tuple[Linear, ...] = ()) -> Reliabi
             f'must be a coordinate of the model, one of {list(coords)}{also} ("|{coords[0]}|"), '
             f"got {_toml_type(text)} {text!r}",
         )
+    return name, two_sided, named
+
+
+def _quantity_of(scene, name: str, two_sided: bool, named: dict):
+    """The quantity ``jdpim.first_passage`` takes: a coordinate's name, a :class:`Linear` or a :class:`Magnitude`."""
+    if name in named:
+        return Magnitude(name, named[name]) if two_sided else named[name]
+    return Magnitude(name, scene.model.coordinates.index(name)) if two_sided else name
+
+
+def _check_levels(r: _Reader, key: str, scene, name: str, two_sided: bool, named: dict, levels) -> None:
+    """``levels`` of a coordinate above its barrier (``jdpim.first_passage``'s check, its message under ``key``)."""
+    from jdpim.reliability._first_passage import checked_levels
+
+    if name not in named and not two_sided:
+        try:
+            checked_levels(scene, name, levels)
+        except ValueError as err:
+            r.fail(key, str(err).splitlines()[0])
+
+
+def _reliability(r: _Reader, scene, derived: tuple[Linear, ...] = ()) -> Reliability:
+    """``[reliability]`` of ``scene``: a coordinate of its model, a quantity of ``derived`` or ``"|q|"`` of either,
+    and levels above the coordinate's barrier (the library's check, ``jdpim.first_passage``'s message under the
+    key) or, for a magnitude, above 0."""
+    name, two_sided, named = _quantity(r, scene, derived)
     above_zero = {"low": 0.0, "low_open": True} if two_sided else {}  # |c| >= 0 exceeds a level <= 0 at once
     value = r.table.get("levels")
     if value is None:
@@ -552,26 +650,33 @@ def _reliability(r: _Reader, scene, derived: tuple[Linear, ...] = ()) -> Reliabi
         levels = (r.real("levels", value, **above_zero),)
     else:
         r.fail("levels", f"must be a number or a non-empty array of numbers, got {_toml_type(value)} {value!r}")
-    if name in named:
-        return Reliability(Magnitude(name, named[name]) if two_sided else named[name], levels)
-    if not two_sided:
-        try:
-            _levels(scene, name, levels)
-        except ValueError as err:
-            r.fail("levels", str(err).splitlines()[0])
-    return Reliability(Magnitude(name, coords.index(name)) if two_sided else name, levels)
+    _check_levels(r, "levels", scene, name, two_sided, named, levels)
+    return Reliability(_quantity_of(scene, name, two_sided, named), levels)
 
 
-def load(path) -> SceneFile:
-    """Read and check a scene file (see the module docstring for its keys).
+def _fragility(f: _Reader, scene, derived: tuple[Linear, ...], names: tuple[str, ...]) -> FragilityCurve:
+    """``[fragility]`` of ``scene``: the quantity as in ``[reliability]``, one ``level``, at least two increasing
+    positive ``intensities``, ``reference`` > 0 and ``confidence`` in (0, 1); it needs the Monte Carlo method."""
+    if "monte_carlo" not in names:
+        f.fail(None, 'needs the method "monte_carlo" ([method] name): the fragility counts are binomial')
+    name, two_sided, named = _quantity(f, scene, derived)
+    level = f.number("level", low=0.0 if two_sided else None, low_open=True)
+    _check_levels(f, "level", scene, name, two_sided, named, (level,))
+    value = f.table.get("intensities")
+    if not isinstance(value, list) or len(value) < 2:
+        f.fail("intensities", f"must be an array of at least two increasing numbers > 0, got {value!r}")
+    intensities = tuple(f.real(f"intensities[{i}]", a, low=0.0, low_open=True) for i, a in enumerate(value))
+    if any(b <= a for a, b in zip(intensities, intensities[1:], strict=False)):
+        f.fail("intensities", f"must increase, got {list(intensities)}")
+    reference = f.number("reference", 1.0, low=0.0, low_open=True)
+    confidence = f.number("confidence", 0.95, low=0.0, low_open=True, high=1.0)
+    if confidence == 1.0:
+        f.fail("confidence", "must lie in (0, 1), got 1")
+    return FragilityCurve(_quantity_of(scene, name, two_sided, named), level, intensities, reference, confidence)
 
-    Raises:
-        SceneFileError: one line naming the file and the key (missing file, TOML syntax, unknown key,
-            wrong type, value out of range, or a scene the library rejects).
-    """
-    import jdpim
 
-    path = pathlib.Path(path)
+def _read(path: pathlib.Path) -> dict:
+    """The file's tables, once it reads as TOML with no unknown table and every table of ``_REQUIRED``."""
     try:
         raw = tomllib.loads(path.read_text())
     except FileNotFoundError:
@@ -586,35 +691,55 @@ def load(path) -> SceneFile:
     for name in _REQUIRED:
         if name not in raw:
             raise SceneFileError(f"{path.name}: [{name}]: missing table")
-    tables = {name: _Reader(path, name, raw.get(name, {}), keys=None if name == "model" else ()) for name in _SCHEMA}
+    return raw
 
-    m = tables["model"]
+
+def _model(m: _Reader):
+    """The model of ``[model]`` (``kind`` one of ``KINDS``, ``"vibro_impact"`` by default) with its filters
+    appended, and its table with the defaults filled in."""
     kind = m.table.get("kind", "vibro_impact")
     if kind not in KINDS:
         m.fail("kind", f"must be one of {list(KINDS)}, got {kind!r}")
     m.only(_MODEL_KEYS[kind])
-    mdof = kind != "vibro_impact"  # several degrees of freedom: a jdpim.MDOFOscillator
-    model, model_table = _mdof(m) if kind == "mdof" else _example(m, kind) if mdof else _vibro_impact(m)
-    if mdof:
-        model, model_table["filters"] = _filters(m, model)
-    D = _intensity(tables["noise"], model.n_sources) if mdof else tables["noise"].number("D", low=0.0)
-    t = tables["time"]
+    if kind == "vibro_impact":
+        return _vibro_impact(m)
+    model, table = _mdof(m) if kind == "mdof" else _example(m, kind)
+    model, table["filters"] = _filters(m, model)
+    return model, table
+
+
+def _noise(noise: _Reader, model, mdof: bool):
+    """``[noise]``: the intensity ``D`` (a number, or for several degrees of freedom see :func:`_intensity`), the
+    envelope (``None``: stationary), and the table with the defaults filled in."""
+    D = _intensity(noise, model.n_sources) if mdof else noise.number("D", low=0.0)
+    envelope, envelope_table = _envelope(noise)
+    return D, envelope, {"D": D, **({"envelope": envelope_table} if envelope is not None else {})}
+
+
+def _time(t: _Reader) -> tuple[float, float, list[float]]:
+    """``[time]``: ``t_end`` > 0 and ``dt`` > 0 (s), and the times ``save_at`` in [0, t_end] (default ``[t_end]``)."""
     t_end = t.number("t_end", low=0.0, low_open=True)
     dt = t.number("dt", low=0.0, low_open=True)
     save_at = t.table.get("save_at", [t_end])
     if not isinstance(save_at, list) or not save_at:
         t.fail("save_at", f"must be a non-empty array of times in s, got {save_at!r}")
-    save_at = [t.real("save_at", s, low=0.0, high=t_end) for s in save_at]
-    init = tables["initial"]
-    if mdof:  # arrays of n numbers; by default at rest at the model's start (0, or 1 for a harmonic filter)
-        start = list(model.start or (0.0,) * model.dimension)
-        x0, v0 = (
-            init.vector(key, model.dimension, default) for key, default in (("x0", start), ("v0", [0.0] * len(start)))
-        )
-    else:
-        x0, v0 = init.number("x0", NONE, allow_none=True), init.number("v0", 0.0)
+    return t_end, dt, [t.real("save_at", s, low=0.0, high=t_end) for s in save_at]
 
-    me = tables["method"]
+
+def _initial(init: _Reader, model, mdof: bool):
+    """``[initial]``: ``x0`` and ``v0``, numbers for one degree of freedom (``x0`` ``None`` by default: at the
+    barrier, or 0), arrays of ``n`` numbers for several (by default at rest at the model's start)."""
+    if not mdof:
+        return init.number("x0", NONE, allow_none=True), init.number("v0", 0.0)
+    start = list(model.start or (0.0,) * model.dimension)  # the model's start: 0, or 1 for a harmonic filter
+    return tuple(
+        init.vector(key, model.dimension, default) for key, default in (("x0", start), ("v0", [0.0] * len(start)))
+    )
+
+
+def _methods(me: _Reader) -> tuple[tuple[Method, ...], str, dict]:
+    """``[method]``: the methods in the order named, Monte Carlo's forcing (one of ``FORCINGS``), and the table
+    with the defaults filled in."""
     names = me.choices("name", None, METHODS) if "name" in me.table else me.fail("name", "is required")
     seed = me.integer("seed", 0, low=0)
     forcing = me.table.get("forcing", FORCINGS[0])
@@ -629,9 +754,20 @@ def load(path) -> SceneFile:
         else Method("monte_carlo", me.integer("n_samples", 10_000, low=2), seed)
         for name in names
     )
-    o = tables["output"]
+    table = {
+        "name": list(names),
+        **{("n_points" if x.name == "dpim" else "n_samples"): x.n_paths for x in methods},
+        "seed": seed,
+        **({"forcing": forcing} if "monte_carlo" in names else {}),
+    }
+    return methods, forcing, table
+
+
+def _outputs(o: _Reader, model, mdof: bool) -> tuple[Outputs, dict]:
+    """``[output]``: what the run stores, and the table with the defaults filled in (one degree of freedom:
+    ``densities`` from ``DENSITIES``; several: the coordinates' marginals and the pairs ``joint``)."""
+    coords = model.coordinates
     if mdof:
-        coords = model.coordinates
         densities, joint = o.choices("densities", list(coords), coords), o.pairs("joint", coords)
         marginals = densities
     else:
@@ -643,44 +779,79 @@ def load(path) -> SceneFile:
     outputs = Outputs(
         marginals=marginals,
         joint=joint,
-        derived=_derived(o, model.coordinates),
+        derived=_derived(o, coords),
         states=o.boolean("states", False),
         figures=o.boolean("figures", True),
         n_grid=o.integer("n_grid", 201, low=2),
     )
+    return outputs, {
+        "densities": list(densities),
+        **({"joint": [list(p) for p in joint]} if mdof else {}),
+        **(
+            {"derived": {q.name: {coords[i]: c for i, c in q.terms} for q in outputs.derived}}
+            if outputs.derived
+            else {}
+        ),
+        "states": outputs.states,
+        "figures": outputs.figures,
+        "n_grid": outputs.n_grid,
+    }
+
+
+def _questions(raw: dict, tables: dict, scene, derived: tuple[Linear, ...], names: tuple[str, ...]) -> tuple:
+    """The questions of the file, ``[reliability]`` and ``[fragility]`` (each ``None`` where the file has no such
+    table), and their tables as stored, with the defaults filled in."""
+    reliability = _reliability(tables["reliability"], scene, derived) if "reliability" in raw else None
+    fragility = _fragility(tables["fragility"], scene, derived, names) if "fragility" in raw else None
+    table = {}
+    if reliability is not None:
+        table["reliability"] = {"quantity": str(reliability.quantity), "levels": list(reliability.levels)}
+    if fragility is not None:
+        table["fragility"] = {
+            "quantity": str(fragility.quantity),
+            **{k: getattr(fragility, k) for k in ("level", "reference", "confidence")},
+            "intensities": list(fragility.intensities),
+        }
+    return reliability, fragility, table
+
+
+def load(path) -> SceneFile:
+    """Read and check a scene file (see the module docstring for its keys).
+
+    Raises:
+        SceneFileError: one line naming the file and the key (missing file, TOML syntax, unknown key,
+            wrong type, value out of range, or a scene the library rejects).
+    """
+    import jdpim
+
+    path = pathlib.Path(path)
+    raw = _read(path)
+    tables = {name: _Reader(path, name, raw.get(name, {}), keys=None if name == "model" else ()) for name in _SCHEMA}
+    model, model_table = _model(tables["model"])
+    mdof = model_table["kind"] != "vibro_impact"  # several degrees of freedom: a jdpim.MDOFOscillator
+    D, envelope, noise_table = _noise(tables["noise"], model, mdof)
+    t_end, dt, save_at = _time(tables["time"])
+    x0, v0 = _initial(tables["initial"], model, mdof)
+    methods, forcing, method_table = _methods(tables["method"])
+    outputs, output_table = _outputs(tables["output"], model, mdof)
     try:
-        noise = jdpim.WhiteNoise(D=D)
+        noise = jdpim.WhiteNoise(D=D, envelope=envelope)
         excitation = excitation_of(forcing)
         scene = jdpim.Scene(
             model, noise=noise, x0=x0, v0=v0, t_end=t_end, dt=dt, save_at=save_at, excitation=excitation
         )
     except (ValueError, TypeError) as err:
         raise _library_error(path, err) from None
-    reliability = _reliability(tables["reliability"], scene, outputs.derived) if "reliability" in raw else None
+    reliability, fragility, question_tables = _questions(
+        raw, tables, scene, outputs.derived, tuple(method_table["name"])
+    )
     table = {
         "model": model_table,
-        "noise": {"D": D},
+        "noise": noise_table,
         "time": {"t_end": t_end, "dt": dt, "save_at": list(scene.save_at)},
         "initial": {"x0": NONE if x0 is None else x0, "v0": v0},
-        "method": {
-            "name": list(names),
-            **{("n_points" if x.name == "dpim" else "n_samples"): x.n_paths for x in methods},
-            "seed": seed,
-            **({"forcing": forcing} if "monte_carlo" in names else {}),
-        },
-        "output": {
-            "densities": list(densities),
-            **({"joint": [list(p) for p in joint]} if mdof else {}),
-            **(
-                {"derived": {q.name: {model.coordinates[i]: c for i, c in q.terms} for q in outputs.derived}}
-                if outputs.derived
-                else {}
-            ),
-            "states": outputs.states,
-            "figures": outputs.figures,
-            "n_grid": outputs.n_grid,
-        },
+        "method": method_table,
+        "output": output_table,
+        **question_tables,
     }
-    if reliability is not None:
-        table["reliability"] = {"quantity": str(reliability.quantity), "levels": list(reliability.levels)}
-    return SceneFile(path, scene, methods, outputs, table, reliability)
+    return SceneFile(path, scene, methods, outputs, table, reliability, fragility)

@@ -1,6 +1,6 @@
 """Run a scene file: the named methods, the densities it asks for, stored as ``.npz`` + JSON + CSV + figures
 (and each method's result, ``result.save``, with ``states = true``); with a ``[reliability]`` table also
-first-passage probabilities (``.npz`` + Markdown)."""
+first-passage probabilities, with a ``[fragility]`` table a fragility curve (``.npz`` + Markdown)."""
 
 from __future__ import annotations
 
@@ -43,11 +43,72 @@ def first_passage(sf: SceneFile, *, progress: bool = True, log=print) -> tuple[d
         wall[m.name] = round(wall_s, 3)
         key = f"first_passage_{m.name}"
         arrays[f"{key}_probability"], arrays[f"{key}_lost_mass"] = np.asarray(fp.probability), np.asarray(fp.lost_mass)
-        if fp.stderr is not None:
-            arrays[f"{key}_stderr"] = np.asarray(fp.stderr)
-        table = report.probability_table(scene.save_at, rel.levels, fp.probability, fp.stderr, str(rel.quantity))
+        if fp.probability_stderr is not None:
+            arrays[f"{key}_stderr"] = np.asarray(fp.probability_stderr)
+        se = fp.probability_stderr
+        table = report.probability_table(scene.save_at, rel.levels, fp.probability, se, str(rel.quantity))
         tables.append(f"{report.NAME[m.name]} ({m.n_paths} paths): {title}\n\n{table}")
     return arrays, "\n\n".join(tables), wall
+
+
+# the fragility table of a scene-file run: a row per intensity
+FRAGILITY_COLUMNS = (
+    ("intensity", "{s:.4g}", "r"),
+    ("P(exceed)", "{p:.4g}", "r"),
+    ("stderr", "{se:.2g}", "r"),
+    ("interval", "[{lo:.4g}, {hi:.4g}]", "r"),
+    ("lognormal fit", "{fit:.4g}", "r"),
+)
+FRAGILITY_FIELDS = (
+    "intensities", "probability", "probability_stderr", "lower", "upper",
+    "median", "median_stderr", "beta", "beta_stderr", "covariance",
+)  # fmt: skip
+
+
+def fragility(sf: SceneFile, *, progress: bool = True, log=print) -> tuple[dict, str, float]:
+    """``jdpim.fragility`` of ``sf.fragility`` by the Monte Carlo method of ``sf``.
+
+    Returns ``(arrays, table, wall_s)``: ``fragility_<field>`` for the fields of ``jdpim.Fragility`` (intensities,
+    probabilities with standard errors and intervals, the lognormal fit with its standard errors and covariance),
+    a Markdown table (a row per intensity, the fit under it) and the wall time in s.
+    """
+    import jdpim
+
+    fr, m = sf.fragility, next(m for m in sf.methods if m.name == "monte_carlo")
+    curve, wall_s, _ = report.timed(
+        functools.partial(
+            jdpim.fragility,
+            sf.scene,
+            fr.quantity,
+            fr.level,
+            fr.intensities,
+            m.method(progress=progress),
+            reference=fr.reference,
+            confidence=fr.confidence,
+        ),
+        log,
+        f"fragility of {fr.quantity} above {fr.level:g}: {len(fr.intensities)} intensities of {m.n_paths} paths",
+    )
+    arrays = {f"fragility_{k}": np.asarray(getattr(curve, k)) for k in FRAGILITY_FIELDS}
+    fit, _ = curve.fitted(np.asarray(fr.intensities))
+    rows = [
+        {"s": s, "p": p, "se": se, "lo": lo, "hi": hi, "fit": f}
+        for s, p, se, lo, hi, f in zip(
+            fr.intensities,
+            *(
+                np.asarray(a).tolist()
+                for a in (curve.probability, curve.probability_stderr, curve.lower, curve.upper, fit)
+            ),
+            strict=True,
+        )
+    ]
+    table = (
+        f"P(max over [0, {sf.scene.save_at[-1]:g}] of {fr.quantity} > {fr.level:g}) by Monte Carlo ({m.n_paths} paths "
+        f"per intensity, {fr.confidence:g} intervals)\n\n{report.markdown(rows, FRAGILITY_COLUMNS)}\n\n"
+        f"lognormal fit: median {float(curve.median):.4g} +- {float(curve.median_stderr):.2g}, "
+        f"beta {float(curve.beta):.4g} +- {float(curve.beta_stderr):.2g}"
+    )
+    return arrays, table, round(wall_s, 3)
 
 
 def run(sf: SceneFile, out: pathlib.Path, *, progress: bool = True, log=print) -> dict:
@@ -58,7 +119,8 @@ def run(sf: SceneFile, out: pathlib.Path, *, progress: bool = True, log=print) -
     ``report.quantity_grids``; a joint density on every second node). With ``sf.outputs.states`` every method's
     result goes to ``<stem>_<method>.npz`` (``result.save``, with the scene and the method; ``jdpim.load`` reads it).
     With ``sf.reliability``, the :func:`first_passage` arrays go to the same ``.npz`` and its tables to
-    ``<stem>_first_passage.md`` (and the log). Returns the metadata also written to the JSON file (parameters,
+    ``<stem>_first_passage.md`` (and the log); with ``sf.fragility`` likewise :func:`fragility`'s, to
+    ``<stem>_fragility.md``. Returns the metadata also written to the JSON file (parameters,
     versions, wall time per method in s, compilation included, array shapes, file names).
     """
     scene, stem, outputs = sf.scene, sf.path.stem, sf.outputs
@@ -100,6 +162,12 @@ def run(sf: SceneFile, out: pathlib.Path, *, progress: bool = True, log=print) -
         log(report.terminal(fp_tables))
         files.append(f"{stem}_first_passage.md")
         (out / files[-1]).write_text(f"# {sf.path.name}: first passage\n\n{fp_tables}\n")
+    if sf.fragility is not None:
+        fr_arrays, fr_table, fr_wall = fragility(sf, progress=progress, log=log)
+        arrays |= fr_arrays
+        log(report.terminal(fr_table))
+        files.append(f"{stem}_fragility.md")
+        (out / files[-1]).write_text(f"# {sf.path.name}: fragility\n\n{fr_table}\n")
     np.savez_compressed(out / files[0], **arrays)
     report.write_csv(
         out / files[1], rows, f"{sf.path.name}: wall and CPU time of jdpim.solve in s, compilation included"
@@ -113,6 +181,7 @@ def run(sf: SceneFile, out: pathlib.Path, *, progress: bool = True, log=print) -
         "versions": report.versions(),
         "wall_time_s": timings,
         **({} if sf.reliability is None else {"first_passage_wall_time_s": fp_wall}),
+        **({} if sf.fragility is None else {"fragility_wall_time_s": fr_wall}),
         "arrays": {k: list(v.shape) for k, v in arrays.items()},
         "files": files + [f"{stem}.json"],
     }

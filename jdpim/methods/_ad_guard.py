@@ -2,9 +2,10 @@
 
 By mechanism (:func:`probed`, around the simulation whenever it is traced): differentiated, each path's tangent
 is found by forward mode, so that reverse mode too can read the per-path contributions of whatever it
-differentiates and warn where few paths carry the derivative (``jdpim._tangents``); ``Result.pdf`` and
-``Result.moment`` read theirs in forward mode. Statically, whatever the numbers: a grazing start, the impacts of
-a system of several degrees of freedom (not validated), and probabilities counted over sampled paths (zero).
+differentiates and warn where few paths carry the derivative (``jdpim._tangents``); ``Result.pdf``,
+``Result.joint_pdf`` and ``Result.moment`` read theirs in forward mode. Statically, whatever the numbers: a
+grazing start, the impacts of a system of several degrees of freedom (not validated), and probabilities counted
+over sampled paths (zero).
 
 Paths that start at rest on the barrier (the default start) graze it at once: the impact's saltation
 factor divides by an impact speed near zero, so the pathwise derivative of each path is dominated by
@@ -26,9 +27,9 @@ import numpy as np
 from .._models import AbstractOscillator
 from .._pytree import concrete
 from .._scene import Scene
-from .._tangents import contract, tangent_basis, watch
+from .._tangents import check_only, contract, projections, tangent_basis, watch
 
-MAX_DIRECTIONS = 32  # differentiated scalars beyond which reverse mode runs unprobed (plain AD, no check)
+MAX_DIRECTIONS = 32  # differentiated scalars beyond which tangents come from plain AD, checked along projections
 
 GRAZING = (
     "pathwise derivatives through a start at rest on the barrier (a grazing impact) are biased: each path's "
@@ -87,8 +88,10 @@ def probed(run, scene: Scene, rows):
     check the per-path contributions of whatever it differentiates (``jdpim._tangents``).
 
     Values and cost are unchanged when nothing is differentiated. Differentiated, the cost is that of
-    ``jax.jacfwd`` over those scalars (reverse mode then needs no backward pass through the steps); beyond
-    ``MAX_DIRECTIONS`` of them it is plain AD, unchecked in reverse mode.
+    ``jax.jacfwd`` over those scalars (reverse mode then needs no backward pass through the steps). Beyond
+    ``MAX_DIRECTIONS`` of them the tangent is plain AD (a backward pass in reverse mode) and the check reads
+    the contributions along ``PROJECTIONS`` fixed random combinations of the scalars (``jdpim._tangents.projections``:
+    their squared norms and sums are kept in expectation), at the cost of that many forward directions more.
     """
     leaves, treedef = jax.tree_util.tree_flatten(scene)
     return _probed(run, treedef, leaves, rows)
@@ -116,12 +119,20 @@ def _probed_jvp(run, treedef, primals, tangents):
 
     live_leaves = [leaves[i] for i in live]
     live_dots = [dots[i] for i in live]
-    basis, n_dir = tangent_basis(live_leaves)
-    if not live or n_dir > MAX_DIRECTIONS:
+    if not live:
         return jax.jvp(f, (live_leaves,), (live_dots,))
-    out, J = jax.vmap(lambda d: jax.jvp(f, (live_leaves,), (d,)), out_axes=(None, 0))(basis)
-    td = jnp.concatenate([jnp.reshape(d, (-1,)) for d in live_dots]).astype(J.dtype)
-    return out, jax.tree_util.tree_map(lambda j: contract(j, td), J)
+    basis, n_dir = tangent_basis(live_leaves)
+    td = jnp.concatenate([jnp.reshape(d, (-1,)) for d in live_dots])
+    if n_dir <= MAX_DIRECTIONS:
+        out, J = jax.vmap(lambda d: jax.jvp(f, (live_leaves,), (d,)), out_axes=(None, 0))(basis)
+        return out, jax.tree_util.tree_map(lambda j: contract(j, td.astype(j.dtype)), J)
+    # many scalars: the tangent by plain AD, checked along PROJECTIONS fixed random directions of them
+    u = projections(n_dir)  # (n_dir, K)
+    directions = [jnp.tensordot(u.T, b, axes=1).astype(b.dtype) for b in basis]
+    out, tangent = jax.jvp(f, (live_leaves,), (live_dots,))
+    _, J = jax.vmap(lambda d: jax.jvp(f, (live_leaves,), (d,)), out_axes=(None, 0))(directions)
+    tk = jnp.asarray(u.T, td.dtype) @ td
+    return out, jax.tree_util.tree_map(lambda y, j: y + check_only(j, tk.astype(j.dtype)), tangent, J)
 
 
 _probed.defjvp(_probed_jvp, symbolic_zeros=True)

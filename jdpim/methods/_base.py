@@ -8,32 +8,25 @@ from __future__ import annotations
 
 import abc
 
+from .._checkpoint import session
 from .._scene import Scene
 
 
 class AbstractMethod(abc.ABC):
     """A way to compute response densities of a :class:`jdpim.Scene`: DPIM, Monte Carlo or path integration.
 
-    Subclasses are frozen dataclasses of numerical settings. ``run(scene)`` computes the result;
-    ``sensitivity(scene, query)`` the derivatives of its densities (called by ``jdpim.sensitivity``);
-    ``first_passage(scene, query)`` first-passage probabilities (called by ``jdpim.first_passage``).
+    Subclasses are frozen dataclasses of numerical settings. ``run(scene)`` computes the result. A method knows
+    no question: questions (``jdpim.first_passage``, ``jdpim.sensitivity``, ``jdpim.impact_statistics``) ask it
+    for its primitives, a sampling method's inputs and paths (``SamplingMethod.inputs``, ``SamplingMethod.paths``)
+    or path integration's step operator.
     """
 
     name: str  # the name results carry in ``Result.method``
+    resumable = False  # whether ``run(scene, checkpoint=...)`` keeps finished work (``solve(..., checkpoint=...)``)
 
     @abc.abstractmethod
     def run(self, scene: Scene):
         """The result of this method on ``scene`` (after the checks of :func:`solve`)."""
-
-    @abc.abstractmethod
-    def sensitivity(self, scene: Scene, query):
-        """``(value, stderr, estimators)`` of ``jdpim.sensitivity`` (``query``: its checked arguments)."""
-
-    def first_passage(self, scene: Scene, query):
-        """The ``jdpim.FirstPassage`` of ``jdpim.first_passage`` (``query``: its checked arguments)."""
-        raise ValueError(
-            f"{type(self).__name__} does not compute first-passage probabilities; use jdpim.MonteCarlo or jdpim.DPIM"
-        )
 
     def replicate(self, scene: Scene, k: int) -> AbstractMethod:
         """The ``k``-th of a set of independent, identically distributed randomisations of this method on
@@ -44,13 +37,16 @@ class AbstractMethod(abc.ABC):
         )
 
 
-def solve(scene: Scene, method: AbstractMethod):
+def solve(scene: Scene, method: AbstractMethod, *, checkpoint=None):
     r"""Response densities of ``scene`` by ``method``: the one entry point for every method.
 
     Args:
         scene: the physics (:class:`jdpim.Scene`): model, excitation, initial state, random parameters,
             time grid and saved times.
         method: the numerics: ``jdpim.DPIM(...)``, ``jdpim.MonteCarlo(...)`` or ``jdpim.PathIntegration(...)``.
+        checkpoint: DPIM and Monte Carlo: a directory or a :class:`jdpim.Checkpoint` where every finished block
+            of paths is written; the same call after an interruption loads them and runs only the rest, with the
+            same result bit for bit. The part files are deleted when the run finishes (``docs/persistence.md``).
 
     Returns:
         a result with the shared interface (``pdf``, ``joint_pdf``, ``moment``, ``mass``, ``n_nonfinite``,
@@ -72,4 +68,9 @@ def solve(scene: Scene, method: AbstractMethod):
             f"method must be a jdpim method object, e.g. jdpim.DPIM(), jdpim.MonteCarlo() or jdpim.PathIntegration(); "
             f"got {what}"
         )
-    return method.run(scene)
+    if checkpoint is None:
+        return method.run(scene)
+    if not method.resumable:
+        raise ValueError(f"checkpoint applies to jdpim.DPIM and jdpim.MonteCarlo, not {type(method).__name__}")
+    with session(checkpoint, scene=scene, method=method, question="solve") as ses:
+        return method.run(scene, checkpoint=ses)

@@ -55,6 +55,7 @@ class DPIM(SamplingMethod):
     devices: tuple | None = static_field(default=None)
     progress: bool | None = static_field(default=None)
     name = "dpim"
+    independent = False  # the points are chosen together: no sampling error (replicates give one)
     default_excitation = SpectralRepresentation()  # two elementary variables per source
 
     def __post_init__(self):
@@ -99,3 +100,22 @@ def dpim(
     """
     method = DPIM(n_points, points, chunk_size=chunk_size, devices=devices, progress=progress)
     return solve(scene, method)
+
+
+def dpim_replicates(scene, n_points: int = 1000, n_replicates: int = 4, *, seed: int = 0, progress=None) -> list:
+    """``n_replicates`` DPIM results of ``scene``, each with its own randomised point set (seeds ``seed + k``,
+    :func:`jdpim.randomised_points`).
+
+    The spread of their densities is the error of one run: ``np.std(pdfs, axis=0, ddof=1)``.
+
+    Example (``notebooks/quickstart.ipynb`` runs it)::
+
+        runs = jdpim.dpim_replicates(scene, 1000, 4)
+        sd = np.std([r.pdf("x", grid, t) for r in runs], axis=0, ddof=1)  # the error of one run, on grid
+    """
+    n_replicates = check_int("n_replicates", n_replicates, low=2)
+    seed = check_int("seed", seed, low=0)
+    dists = DPIM.input_distributions(scene)
+    return [
+        dpim(scene, points=randomised_points(dists, n_points, seed + k), progress=progress) for k in range(n_replicates)
+    ]

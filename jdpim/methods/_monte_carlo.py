@@ -42,6 +42,7 @@ class MonteCarlo(SamplingMethod):
     devices: tuple | None = static_field(default=None)
     progress: bool | None = static_field(default=None)
     name = "monte_carlo"
+    independent = True
     default_excitation = GaussianNodes()  # as accurate as the spectral representation, and cheaper (docs/speed.md)
 
     def __post_init__(self):

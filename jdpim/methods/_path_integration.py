@@ -154,16 +154,6 @@ class PathIntegration(AbstractMethod):
     def run(self, scene: Scene) -> GridResult:
         return _run(scene, self)
 
-    def sensitivity(self, scene: Scene, query):
-        from ..sensitivities._path_integration import grid_sensitivity  # derivatives build on the solver
-
-        return grid_sensitivity(scene, self, query)
-
-    def first_passage(self, scene: Scene, query):
-        from ..reliability._absorbing import absorbing_first_passage  # absorption builds on the solver
-
-        return absorbing_first_passage(scene, self, query)
-
 
 jax.tree_util.register_dataclass(
     PathIntegration, data_fields=[], meta_fields=[f.name for f in dataclasses.fields(PathIntegration)]
@@ -242,7 +232,8 @@ def default_extents(scene: Scene, settings: PathIntegration) -> tuple[float, flo
     return (settings.x_max or x_max), (settings.v_max or v_max)
 
 
-def _validate(scene: Scene, settings: PathIntegration, initial, stationary: bool) -> None:
+def validate(scene: Scene, settings: PathIntegration, initial, stationary: bool) -> None:
+    """Refuse, in one line, a scene or settings path integration cannot solve (before tracing)."""
     if not isinstance(scene, Scene):
         raise TypeError(f"scene must be a jdpim.Scene, got {scene!r}")
     if not isinstance(settings, PathIntegration):
@@ -329,7 +320,8 @@ def _edge_mask(n_x: int, n_v: int, has_barrier: bool, dtype):
     return jnp.asarray(mask, dtype)
 
 
-def _setup(scene: Scene, settings: PathIntegration, extents):
+def setup(scene: Scene, settings: PathIntegration, extents):
+    """``(grid, ops, weights, edge)``: the grid, its step operator, its quadrature weights and its edge mask."""
     dtype = scene.float_dtype
     grid = make_grid(scene.model, settings.n_x, settings.n_v, *extents, dtype)
     D = jnp.asarray(scene.noise.D, dtype)
@@ -369,7 +361,7 @@ def saved_scan(body, carry, steps):
 
 @functools.partial(jax.jit, static_argnames=("settings", "extents", "initial"))
 def _transient(scene: Scene, settings: PathIntegration, extents, initial):
-    grid, ops, weights, edge = _setup(scene, settings, extents)
+    grid, ops, weights, edge = setup(scene, settings, extents)
     dtype = grid.x.dtype
     p, start = start_density(scene, settings, grid, weights, initial)
     zero = jnp.zeros((), dtype)
@@ -494,7 +486,7 @@ def _linear_solve(settings: PathIntegration, matvec, b, steps: int = 1):
 
 @functools.partial(jax.jit, static_argnames=("settings", "extents", "law"))
 def _stationary(scene: Scene, settings: PathIntegration, extents, law):
-    grid, ops, weights, edge = _setup(scene, settings, extents)
+    grid, ops, weights, edge = setup(scene, settings, extents)
     X, V = jnp.meshgrid(grid.x, grid.v, indexing="ij")
     centre = grid.x[0] if scene.model.has_barrier else 0.0
     if law is None:  # a Gaussian as wide as the grid allows
@@ -604,13 +596,13 @@ def resolved(scene: Scene, settings: PathIntegration) -> tuple[PathIntegration, 
 
 def _run(scene: Scene, settings: PathIntegration) -> GridResult:
     stationary, initial = settings.stationary, settings.initial
-    _validate(scene, settings, initial, stationary)
+    validate(scene, settings, initial, stationary)
     settings, extents = resolved(scene, settings)
-    _check_resolution(scene, settings, extents, point_start=initial is None and not stationary)
+    check_resolution(scene, settings, extents, point_start=initial is None and not stationary)
     res = _solve(scene, settings, extents, stationary, initial)
     _report(res, settings)
     if settings.estimate_error:
-        coarse = _solve(scene, _coarser(scene, settings, stationary, initial), extents, stationary, initial)
+        coarse = _solve(scene, coarser(scene, settings, stationary, initial), extents, stationary, initial)
         res = dataclasses.replace(res, coarse=jax.lax.stop_gradient(coarse))
     return res
 
@@ -625,7 +617,7 @@ def _solve(scene: Scene, settings: PathIntegration, extents, stationary: bool, i
     return _stationary(scene, settings, extents, law)
 
 
-def _coarser(scene: Scene, settings: PathIntegration, stationary: bool, initial) -> PathIntegration:
+def coarser(scene: Scene, settings: PathIntegration, stationary: bool, initial) -> PathIntegration:
     """Every other node in ``x`` and ``v``, and twice the step where the start and the saved times allow it."""
     start = 0.0 if initial is not None else settings.t0
     times = [] if stationary else [start, *scene.save_at]
@@ -639,7 +631,7 @@ def _coarser(scene: Scene, settings: PathIntegration, stationary: bool, initial)
     )
 
 
-def _check_resolution(scene: Scene, settings: PathIntegration, extents, point_start: bool) -> None:
+def check_resolution(scene: Scene, settings: PathIntegration, extents, point_start: bool) -> None:
     """Warn when the grid cannot resolve the diffusion of one step or the Gaussian of a point start."""
     model, D = scene.model, concrete(scene.noise.D)
     b = concrete(model.barrier) if model.has_barrier else np.zeros(())

@@ -21,10 +21,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._checkpoint import digest
 from .._cpu import host_memory, on_cpu
 from .._distributions import elementary_ppf
+from .._engine.batches import WIDE_CHUNK
 from .._excitation import AbstractExcitation, Clock, Clocked, modulate
-from .._integrate import WIDE_CHUNK, integrate
+from .._integrate import integrate
 from .._points import PointSet, select_points
 from .._pytree import check_int, concrete
 from .._scene import Scene, with_model_parameters
@@ -90,15 +92,35 @@ def divergence_scale(scene: Scene) -> np.ndarray | None:
     return np.concatenate([np.full(n, start["x0"] + v * scene.t_end), np.full(n, v)])
 
 
-def without_diverged(scene: Scene, states):
-    """``states`` ``(N, S, 2 n)`` with those of paths beyond ``DIVERGED`` times :func:`divergence_scale` set to NaN
-    (from the first saved time beyond it on), so that they count as non-finite (``Result.n_nonfinite``)."""
+def divergence_bound(scene: Scene) -> np.ndarray | None:
+    """``(2 n,)``: ``DIVERGED`` times :func:`divergence_scale`, the bound beyond which a state has diverged;
+    ``None`` where the scene's parameters are traced."""
     scale = divergence_scale(scene)
-    if scale is None:
-        return states
-    beyond = jnp.any(jnp.abs(states) > jnp.asarray(DIVERGED * scale, states.dtype)[None, None], axis=-1)
-    beyond = jnp.cumsum(beyond, axis=1) > 0
-    return jnp.where(beyond[..., None], jnp.nan, states)
+    return None if scale is None else DIVERGED * scale
+
+
+def beyond(states, bound):
+    """Whether each state (the last axis, ``2 n``) of ``states`` lies beyond ``bound`` ``(2 n,)`` in some coordinate
+    or velocity: a diverged state. Densities leave such states out (:func:`without_diverged`); first passage counts
+    a path as lost from its first such state on, unless it has passed the level before
+    (:class:`jdpim.tracking.RunningMaximum`)."""
+    limit = jnp.asarray(bound, states.dtype).reshape((1,) * (states.ndim - 1) + (-1,))
+    return jnp.any(jnp.abs(states) > limit, axis=-1)
+
+
+def diverged(scene: Scene, states):
+    """``(N, S)``: whether each path of ``states`` ``(N, S, 2 n)`` has been :func:`beyond`
+    :func:`divergence_bound` at this or an earlier saved time (all ``False`` where the bound is traced)."""
+    bound = divergence_bound(scene)
+    if bound is None:
+        return jnp.zeros(states.shape[:2], bool)
+    return jnp.cumsum(beyond(states, bound), axis=1) > 0
+
+
+def without_diverged(scene: Scene, states):
+    """``states`` ``(N, S, 2 n)`` with those of paths that have :func:`diverged` set to NaN, so that they count as
+    non-finite (``Result.n_nonfinite``)."""
+    return jnp.where(diverged(scene, states)[..., None], jnp.nan, states)
 
 
 def _largest_chunk(scene: Scene, kind: str) -> int:
@@ -273,7 +295,7 @@ def simulate(scene: Scene, rows, *, kind: str, chunk_size: int, track=None):
 _jitted_simulate = jax.jit(_simulate, static_argnames=("kind", "chunk_size", "track"))
 
 
-def _is_traced(tree) -> bool:
+def is_traced(tree) -> bool:
     return any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(tree))
 
 
@@ -348,6 +370,7 @@ def run_paths(
     progress=None,
     label="",
     track=None,
+    checkpoint=None,
 ):
     """Saved states ``(N, S, 2)`` of ``rows``, sharded over ``devices`` and streamed in blocks of paths.
 
@@ -366,6 +389,9 @@ def run_paths(
         label: the progress line's prefix.
         track: a quantity carried along every step (a :class:`jdpim._integrate.Tracker`); then the pair
             ``(states, tracked)`` is returned.
+        checkpoint: a :class:`jdpim._checkpoint.Session` (``jdpim.solve(..., checkpoint=...)``) or ``None``:
+            the blocks are then of its ``every`` paths, those it holds are loaded and the others written to it
+            as they finish.
 
     Under ``jax.distributed`` (more than one process) the rows are split over the processes and the states
     gathered on every one (:func:`_across_processes`).
@@ -374,7 +400,9 @@ def run_paths(
     differentiating paths that start at rest on the barrier then warns (``SensitivityWarning``: pathwise
     derivatives through that grazing impact are biased).
     """
-    if _is_traced((scene, rows)):
+    if is_traced((scene, rows)):
+        if checkpoint is not None:
+            raise ValueError("checkpoint applies to concrete runs, not under a JAX transformation (jit, grad, vmap)")
         run = functools.partial(simulate, kind=kind, chunk_size=chunk_size, track=track)
         return run(guard(scene), rows) if track is not None else probed(run, guard(scene), rows)
     local = functools.partial(
@@ -386,6 +414,7 @@ def run_paths(
         progress=progress,
         label=label,
         track=track,
+        checkpoint=checkpoint,
     )
     return _across_processes(scene, rows, local, devices) if jax.process_count() > 1 else local(scene, rows)
 
@@ -408,9 +437,11 @@ def _across_processes(scene: Scene, rows, local, devices):
     return jax.tree_util.tree_map(lambda a: jax.device_put(np.asarray(a)[:n], _devices(devices)[0]), gathered)
 
 
-def _run_local(scene: Scene, rows, *, kind, chunk_size, block_size, devices, progress, label, track):
+def _run_local(scene: Scene, rows, *, kind, chunk_size, block_size, devices, progress, label, track, checkpoint):
     """:func:`run_paths` on this process's devices."""
     devices = _devices(devices)
+    if checkpoint is not None and checkpoint.every is not None:
+        block_size = checkpoint.every
     n = rows.shape[0]
     chunk_size = balanced_chunk(n, chunk_size, len(devices))
     unit = chunk_size * len(devices)
@@ -428,16 +459,25 @@ def _run_local(scene: Scene, rows, *, kind, chunk_size, block_size, devices, pro
     pad = n_blocks * block - n
     rows = pad_rows(rows, pad)
     home = home_device(devices)
-    if n_blocks == 1:
+    if n_blocks == 1 and checkpoint is None:
         out = run(scene, jax.device_put(rows, sharding))
         bar.update(n, out)
         if home is not None:
             out = jax.device_put(out, home)
         return jax.tree_util.tree_map(lambda a: a[:n], out) if pad else out
     parts = []
+    if checkpoint is not None:  # what its parts cover: these rows, in these blocks
+        index = checkpoint.next_run()
+        covers = {"kind": kind, "paths": n, "chunk": chunk_size, "block": block, "rows": digest(rows)}
     for b in range(n_blocks):
-        out = run(scene, jax.device_put(rows[b * block : (b + 1) * block], sharding))
-        parts.append(jax.tree_util.tree_map(np.asarray, out))
+        name = f"paths{index}-block{b}.npz" if checkpoint is not None else None
+        out = None if checkpoint is None else checkpoint.load(name, covers)
+        if out is None:
+            out = run(scene, jax.device_put(rows[b * block : (b + 1) * block], sharding))
+            out = jax.tree_util.tree_map(np.asarray, out)
+            if checkpoint is not None:
+                checkpoint.store(name, covers, out)
+        parts.append(out)
         bar.update(min(n, (b + 1) * block))
     target = home or (sharding if n % len(devices) == 0 else devices[0])
     return jax.tree_util.tree_map(lambda *a: jax.device_put(np.concatenate(a)[:n], target), *parts)
@@ -446,7 +486,8 @@ def _run_local(scene: Scene, rows, *, kind, chunk_size, block_size, devices, pro
 def _finish(scene: Scene, states, weights, method: str) -> Result:
     states = without_diverged(scene, states)
     model = scene.model
-    res = Result(scene.save_at, states, weights, model.bounds(), method, model.coordinates, model_constraints(model))
+    constraints, independent = model_constraints(model), SamplingMethod.named(method).independent
+    res = Result(scene.save_at, states, weights, model.bounds(), method, model.coordinates, constraints, independent)
     counts = concrete(res.n_nonfinite())
     if counts is not None and counts.any():
         warnings.warn(
@@ -515,14 +556,19 @@ class SamplingMethod(AbstractMethod):
     """A method that integrates weighted paths (DPIM points or Monte Carlo samples) in the shared core.
 
     Subclasses give ``inputs(scene) -> (rows, weights, chunk_size)``, the fields ``chunk_size``, ``devices`` and
-    ``progress``, and the class attributes ``name`` and ``default_excitation`` (the forcing it integrates a scene
-    with where the scene names none, ``Scene(excitation=None)``).
+    ``progress``, and the class attributes ``name``, ``default_excitation`` (the forcing it integrates a scene
+    with where the scene names none, ``Scene(excitation=None)``) and ``independent`` (whether its paths are
+    independent samples, so that its estimates have sampling standard errors).
+
+    Questions on paths (first passage, impact statistics, sensitivities, :func:`jdpim.tracking.track`) ask a
+    sampling method for its ``inputs`` and run them with :meth:`paths`, tracking what they need along the steps.
     """
 
     chunk_size: int | None
     devices: tuple | None
     progress: bool | None
     default_excitation: ClassVar[AbstractExcitation]
+    independent: ClassVar[bool]  # its paths are independent samples: its estimates have sampling standard errors
     _registry: ClassVar[dict] = {}
 
     def __init_subclass__(cls, **kwargs):
@@ -545,20 +591,29 @@ class SamplingMethod(AbstractMethod):
     def inputs(self, scene: Scene) -> tuple:
         """``(rows, weights, chunk_size)``: per-path inputs ``(N, d)``, path probabilities ``(N,)``, paths per chunk."""
 
-    def run(self, scene: Scene) -> Result:
+    resumable = True  # solve(..., checkpoint=...) applies
+
+    def run(self, scene: Scene, checkpoint=None) -> Result:
         rows, weights, chunk = self.inputs(scene)
-        states = run_paths(scene, rows, kind=self.name, chunk_size=chunk, devices=self.devices, progress=self.progress)
+        states = self.paths(scene, rows, chunk, checkpoint=checkpoint)
         return _finish(scene, states, weights, self.name)
 
-    def sensitivity(self, scene: Scene, query):
-        from ..sensitivities._sensitivity import sampled_sensitivity  # the estimators build on this core
-
-        return sampled_sensitivity(scene, self, query)
-
-    def first_passage(self, scene: Scene, query):
-        from ..reliability._sampled import sampled_first_passage  # failure probabilities build on this core
-
-        return sampled_first_passage(self, scene, query)
+    def paths(self, scene: Scene, rows, chunk_size: int, track=None, checkpoint=None):
+        """The saved states ``(N, S, 2 d)`` of the input ``rows`` (from :meth:`inputs`), integrated in chunks of
+        ``chunk_size`` paths on this method's devices (:func:`run_paths`); with ``track`` (a
+        :class:`jdpim.tracking.AbstractTracked`) the pair ``(states, values)``, the values ``(N, S, k)`` tracked
+        along every step at the saved times. The primitive every question on paths asks for; with ``checkpoint``
+        (the job's :class:`jdpim._checkpoint.Session`) its finished blocks are kept and reused."""
+        return run_paths(
+            scene,
+            rows,
+            kind=self.name,
+            chunk_size=chunk_size,
+            devices=self.devices,
+            progress=self.progress,
+            track=track,
+            checkpoint=checkpoint,
+        )
 
 
 def check_run_settings(method) -> None:

@@ -23,16 +23,17 @@ from .._scene import with_parameters
 from ..methods._path_integration import (
     PathIntegration,
     PathIntegrationWarning,
-    _check_resolution,
-    _coarser,
-    _setup,
-    _validate,
+    check_resolution,
+    coarser,
     resolved,
     saved_scan,
+    setup,
     start_density,
+    validate,
 )
 from ..methods._pi_operator import drift_and_diffusion, make_grid
-from ._first_passage import Coordinate, FirstPassage, FirstPassageQuery
+from ..sensitivities._path_integration import check_noise_resolution, check_start
+from ._passage import Coordinate, FirstPassage, FirstPassageQuery
 
 SUBCELLS = 8  # points per axis and node cell at which the quantity is compared with the level
 DEFECT_TOL = 1e-3  # mass that left the grid unabsorbed (and was put back by renormalisation) before a warning
@@ -54,13 +55,13 @@ def absorbing_first_passage(scene, settings: PathIntegration, query: FirstPassag
     if query.wrt:
         _check_wrt(query)
     initial = settings.initial
-    _validate(scene, settings, initial, stationary=False)
+    validate(scene, settings, initial, stationary=False)
     settings, extents = resolved(scene, settings)
-    _check_resolution(scene, settings, extents, point_start=initial is None)
+    check_resolution(scene, settings, extents, point_start=initial is None)
     probability, defect, leak, keep = _probability(scene, settings, extents, query, "")
     grid_error = None
     if settings.estimate_error:
-        coarse = _coarser(scene, settings, False, initial)
+        coarse = coarser(scene, settings, False, initial)
         p_coarse, *_ = _probability(scene, coarse, extents, query, " (the coarse grid of estimate_error=True)")
         grid_error = jax.lax.stop_gradient(jnp.abs(probability - p_coarse))
     _report(probability, defect, leak, settings)
@@ -88,12 +89,10 @@ def _check_wrt(query: FirstPassageQuery) -> None:
 def _derivative(scene, settings: PathIntegration, extents, query: FirstPassageQuery, keep) -> dict:
     """``{name: dP/dname (S, L)}`` by ``jax.jacfwd`` through the absorbed steps, with the grid, the order of the
     weights and the absorbed fractions ``keep`` held at the nominal parameters."""
-    from ..sensitivities._path_integration import _check_noise_resolution, _check_start
-
-    _check_start(min(scene.save_at), settings)
+    check_start(min(scene.save_at), settings)
     if "D" in query.wrt:
         grid = make_grid(scene.model, settings.n_x, settings.n_v, *extents, scene.float_dtype)
-        _check_noise_resolution(scene, settings, grid)
+        check_noise_resolution(scene, settings, grid)
 
     def probability(values):
         survival, _, _ = _survival(with_parameters(scene, values), settings, extents, settings.initial, keep)
@@ -173,7 +172,7 @@ def _survival(scene, settings: PathIntegration, extents, initial, keep):
     """``(survival, defect, leak)``, each ``(L, S)``: the mass kept at every saved time for each ``keep``
     ``(L, n_x, n_v)``, the mass the steps lost at the grid's edges (put back by renormalisation), and the
     largest mass in the outermost node rows."""
-    grid, ops, weights, edge = _setup(scene, settings, extents)
+    grid, ops, weights, edge = setup(scene, settings, extents)
     p0, start = start_density(scene, settings, grid, weights, initial)
     steps = [int(round((t - start) / settings.tau)) for t in scene.save_at]
 

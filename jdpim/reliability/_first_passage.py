@@ -10,131 +10,20 @@ from __future__ import annotations
 import dataclasses
 import warnings
 from collections.abc import Callable
-from typing import Any
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
-from .._io import Labelled
-from .._pytree import check_int, concrete, pytree_dataclass, real_array, static_field
-from .._scene import Scene, parameter_value, saved_index, static_times
+from .._checkpoint import session
+from .._pytree import check_int, concrete, real_array
+from .._scene import Scene, parameter_value
 from ..methods._base import AbstractMethod
-from ..methods._paths import NonFiniteWarning
-
-
-@dataclasses.dataclass(frozen=True)
-class Coordinate:
-    """The state's entry ``index`` (named ``name``) as a function of the state (hashable)."""
-
-    name: str
-    index: int
-
-    def __call__(self, state):
-        return state[self.index]
-
-
-@dataclasses.dataclass(frozen=True)
-class FirstPassageQuery:
-    """The checked arguments of :func:`first_passage` that a method's ``first_passage`` answers."""
-
-    quantity: Callable  # state (n_state,) -> scalar; hashable
-    levels: np.ndarray  # (L,)
-    wrt: tuple = ()  # parameter names to differentiate with respect to
-    values: dict = dataclasses.field(default_factory=dict)  # their nominal values (floats)
-    estimators: dict = dataclasses.field(default_factory=dict)  # name -> estimator
-    estimator: Any = None  # the one the user gave (None: each method's default)
-
-
-@pytree_dataclass
-class FirstPassage(Labelled):
-    r"""First-passage probabilities ``P(max_{s <= t} q(s) > level)``.
-
-    Attributes:
-        times: saved times, s: a tuple of ``S`` floats (pytree structure).
-        levels: the levels, shape ``(L,)``.
-        probability: shape ``(S, L)``: the probability that ``q`` has exceeded each level by each saved time,
-            counted over the paths (or grid mass) that stayed finite.
-        stderr: shape ``(S, L)``, the sampling standard error of ``probability`` (Monte Carlo:
-            ``sqrt(sum_i w_i^2 (1_i - p)^2)``, i.e. ``sqrt(p (1 - p) / N)`` for ``N`` equal weights), or
-            ``None`` where the method has none (DPIM points are not independent samples).
-        lost_mass: shape ``(S, L)``: the probability carried by paths whose state turned non-finite by
-            each saved time before they exceeded the level; they are left out of ``probability``, so the true
-            value lies in ``[probability, probability + lost_mass]`` (a path that exceeded the level first counts
-            as passed).
-        method: the method's name.
-        derivative: ``{name: (S, L) array}``, ``dP/dtheta`` for each parameter of ``wrt`` (``None`` without).
-        derivative_stderr: ``{name: (S, L) array}``, their sampling standard errors (``None`` for DPIM and
-            path integration).
-        grid_error: shape ``(S, L)``, path integration with ``estimate_error=True``: ``|probability - the same on
-            a grid twice as coarse|``, the estimated discretisation error; else ``None``.
-        n_evaluations: responses computed (paths integrated) by subset simulation; ``None`` otherwise.
-        n_replicates: the number ``R`` of DPIM replicates averaged (``first_passage(..., replicates=R)``): then
-            ``probability`` and ``derivative`` are their means and ``stderr``, ``derivative_stderr`` the standard
-            errors of the means (``std / sqrt(R)``); ``None`` otherwise.
-
-    A pytree (leaves: ``levels``, ``probability``, ``stderr``, ``lost_mass``, the derivatives and
-    ``grid_error``): it passes through ``jax.jit``.
-    """
-
-    times: tuple = static_field()
-    levels: Any = None
-    probability: Any = None
-    stderr: Any = None
-    lost_mass: Any = None
-    method: str = static_field(default="monte_carlo")
-    derivative: Any = None
-    derivative_stderr: Any = None
-    grid_error: Any = None
-    n_evaluations: int | None = static_field(default=None)
-    n_replicates: int | None = static_field(default=None)
-
-    def __post_init__(self):
-        object.__setattr__(self, "times", static_times(self.times))
-
-    def at(self, t: float | None = None):
-        """``(probability, stderr)`` at the saved time ``t`` (``None``: the last), each ``(L,)``;
-        ``stderr`` is ``None`` where the method has none."""
-        i = len(self.times) - 1 if t is None else saved_index(self.times, t)
-        return self.probability[i], None if self.stderr is None else self.stderr[i]
-
-    @classmethod
-    def mean_of(cls, runs: list[FirstPassage]) -> FirstPassage:
-        """The mean of ``R >= 2`` independent replicates, with the standard errors of the means."""
-        first, r = runs[0], len(runs)
-
-        def mean_and_stderr(values):
-            stack = jnp.stack(values)
-            return jnp.mean(stack, axis=0), jnp.std(stack, axis=0, ddof=1) / np.sqrt(r)
-
-        p, se = mean_and_stderr([run.probability for run in runs])
-        lost, _ = mean_and_stderr([run.lost_mass for run in runs])
-        derivative = derivative_stderr = None
-        if first.derivative is not None:
-            pairs = {n: mean_and_stderr([run.derivative[n] for run in runs]) for n in first.derivative}
-            derivative, derivative_stderr = ({n: pair[i] for n, pair in pairs.items()} for i in (0, 1))
-        return cls(first.times, first.levels, p, se, lost, first.method, derivative, derivative_stderr, n_replicates=r)
-
-    @staticmethod
-    def passed(tracked, levels):
-        """``(N, S, L)``: 1 where a path's running maximum (:class:`jdpim._integrate.RunningMax` values
-        ``(N, S, 2)``) exceeds a level, else 0."""
-        maxima = tracked[..., 0]
-        return (maxima[..., None] > jnp.asarray(levels, maxima.dtype)[None, None]).astype(maxima.dtype)
-
-    @classmethod
-    def from_tracked(cls, times, levels, tracked, weights, method: str, *, stderr: bool) -> FirstPassage:
-        """From :class:`jdpim._integrate.RunningMax` values ``(N, S, 2)`` of ``N`` paths with probabilities
-        ``weights`` ``(N,)``: a path has passed a level once its running maximum exceeds it (also if its state
-        turned non-finite afterwards); a non-finite path that has not is lost."""
-        maxima, bad = tracked[..., 0], tracked[..., 1] > 0
-        hit = cls.passed(tracked, levels)
-        # over the total weight summed the same way: float32 rounding of a sum of many weights (1e-4 at 2e4
-        # paths) then cancels, and a level every path passes gives exactly 1
-        p = jnp.einsum("n,nsl->sl", weights, hit) / jnp.einsum("n,nsl->sl", weights, jnp.ones_like(hit))
-        se = jnp.sqrt(jnp.einsum("n,nsl->sl", weights * weights, (hit - p[None]) ** 2)) if stderr else None
-        lost = jnp.einsum("n,nsl->sl", weights, (1.0 - hit) * bad[..., None])
-        return cls(times, jnp.asarray(levels, maxima.dtype), p, se, lost, method)
+from ..methods._path_integration import PathIntegration
+from ..methods._paths import NonFiniteWarning, SamplingMethod
+from ._absorbing import absorbing_first_passage
+from ._failure import AbstractFailureMethod
+from ._passage import Coordinate, FirstPassage, FirstPassageQuery
+from ._sampled import sampled_first_passage
 
 
 def _quantity(scene: Scene, var) -> Callable:
@@ -154,7 +43,8 @@ def _quantity(scene: Scene, var) -> Callable:
     return Coordinate(var, names.index(var))
 
 
-def _levels(scene: Scene, var, level) -> np.ndarray:
+def checked_levels(scene: Scene, var, level) -> np.ndarray:
+    """``level`` as a 1-D array of finite levels above the lower bound of ``var`` (refused in one line otherwise)."""
     levels = np.atleast_1d(real_array("level", level, "a number or a 1-D sequence of numbers"))
     if levels.ndim != 1 or levels.size == 0:
         raise ValueError(f"level must be a number or a non-empty 1-D sequence of numbers, got shape {levels.shape}")
@@ -203,7 +93,15 @@ def _derivatives(scene: Scene, wrt, estimator) -> tuple:
 
 
 def first_passage(
-    scene: Scene, var, level, method: AbstractMethod, *, wrt=(), estimator=None, replicates: int | None = None
+    scene: Scene,
+    var,
+    level,
+    method: AbstractMethod | AbstractFailureMethod,
+    *,
+    wrt=(),
+    estimator=None,
+    replicates: int | None = None,
+    checkpoint=None,
 ) -> FirstPassage:
     r"""The probability that ``var`` has exceeded ``level`` at some time in ``[0, t]``, for every saved ``t``.
 
@@ -220,7 +118,9 @@ def first_passage(
         method: ``jdpim.MonteCarlo(...)`` (with standard errors) or ``jdpim.DPIM(...)``: the running maximum
             of ``var`` over the start and the end of every time step of every path; or
             ``jdpim.PathIntegration(...)`` (one degree of freedom): the transient density absorbed where
-            ``var > level`` after every step (``estimate_error=True`` adds ``FirstPassage.grid_error``).
+            ``var > level`` after every step (``estimate_error=True`` adds ``FirstPassage.grid_error``); or
+            ``jdpim.SubsetSimulation(...)`` for small probabilities at the last saved time (its derivatives:
+            ``docs/reliability.md``).
         wrt: parameter names (``jdpim.parameter_names(scene)``) to differentiate ``P`` with respect to.
         estimator: how, for every name of ``wrt``: ``None`` (the default) takes ``jdpim.LikelihoodRatio()`` for
             drift parameters with one noise source (``E[1 (S - Sbar)]`` with the score ``S`` of the whole
@@ -235,9 +135,13 @@ def first_passage(
             (:func:`jdpim.randomised_points`, seeds ``0 .. R - 1``), averaged, with the standard errors of the
             means from their spread (``R`` times the cost of one run). ``None``: one run on the method's points,
             without an error estimate.
+        checkpoint: Monte Carlo, DPIM and subset simulation: a directory or a :class:`jdpim.Checkpoint` where
+            every finished block of paths (subset simulation: every level) is written; the same call after an
+            interruption loads them and runs only the rest, with the same result bit for bit. The part files are
+            deleted when the run finishes (``docs/persistence.md``).
 
     Returns:
-        :class:`FirstPassage`: ``probability`` and ``stderr`` of shape ``(S, L)``.
+        :class:`FirstPassage`: ``probability`` and ``probability_stderr`` of shape ``(S, L)``.
 
     Examples:
         >>> import jdpim
@@ -248,23 +152,49 @@ def first_passage(
     """
     if not isinstance(scene, Scene):
         raise TypeError(f"scene must be a jdpim.Scene, got {type(scene).__name__}")
-    if not isinstance(method, AbstractMethod):
+    if not isinstance(method, (AbstractMethod, AbstractFailureMethod)):
         raise TypeError(f"method must be a jdpim method object, e.g. jdpim.MonteCarlo(), got {method!r}")
     query = FirstPassageQuery(
-        _quantity(scene, var), _levels(scene, var, level), *_derivatives(scene, wrt, estimator), estimator
+        _quantity(scene, var), checked_levels(scene, var, level), *_derivatives(scene, wrt, estimator), estimator
     )
-    if replicates is None:
-        out = method.first_passage(scene, query)
-    else:
+    if replicates is not None:
         replicates = check_int("replicates", replicates, low=2)
-        out = FirstPassage.mean_of([method.replicate(scene, k).first_passage(scene, query) for k in range(replicates)])
+    if checkpoint is not None and not method.resumable:
+        raise ValueError(
+            "checkpoint applies to jdpim.MonteCarlo, jdpim.DPIM and jdpim.SubsetSimulation, not "
+            f"{type(method).__name__}"
+        )
+    question = ("first_passage", var if isinstance(var, str) else getattr(var, "__qualname__", repr(var)),
+                query.levels, query.wrt, repr(estimator), replicates)  # fmt: skip
+    with session(checkpoint, scene=scene, method=method, question=question) as ses:
+        query = dataclasses.replace(query, checkpoint=ses)
+        if replicates is None:
+            out = _answer(scene, method, query)
+        else:
+            out = FirstPassage.mean_of([_answer(scene, method.replicate(scene, k), query) for k in range(replicates)])
     lost = concrete(out.lost_mass)
     if lost is not None and lost.any():
         warnings.warn(
-            f"probability up to {float(lost.max()):.3g} is carried by paths whose state turned non-finite before "
-            "they passed a level; it is left out of FirstPassage.probability (FirstPassage.lost_mass). Reduce dt "
-            "or the excitation level, or sub-step stiff steps (Scene(..., substeps=jdpim.Substeps())).",
+            f"probability up to {float(lost.max()):.3g} is carried by paths whose state turned non-finite or "
+            "diverged before they passed a level; it is left out of FirstPassage.probability "
+            "(FirstPassage.lost_mass). Reduce dt or the excitation level, or sub-step stiff steps "
+            "(Scene(..., substeps=jdpim.Substeps())).",
             NonFiniteWarning,
             stacklevel=2,
         )
     return out
+
+
+def _answer(scene: Scene, method: AbstractMethod | AbstractFailureMethod, query: FirstPassageQuery) -> FirstPassage:
+    """``query`` answered through the primitive ``method`` offers: a sampling method's paths with the running
+    maximum tracked along them, path integration's step operator with absorption, or a method for failure
+    probabilities (subset simulation) that answers it itself."""
+    if isinstance(method, SamplingMethod):
+        return sampled_first_passage(method, scene, query)
+    if isinstance(method, PathIntegration):
+        return absorbing_first_passage(scene, method, query)
+    if isinstance(method, AbstractFailureMethod):
+        return method.first_passage(scene, query)
+    raise ValueError(
+        f"{type(method).__name__} does not compute first-passage probabilities; use jdpim.MonteCarlo or jdpim.DPIM"
+    )

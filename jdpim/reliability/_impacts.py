@@ -16,12 +16,12 @@ from typing import Any
 import jax.numpy as jnp
 import numpy as np
 
-from .._integrate import Impacts
 from .._io import Labelled
 from .._pytree import check_grid, pytree_dataclass, static_field
 from .._scene import Scene, static_times
 from ..methods._ad_guard import INDICATOR, watch
-from ..methods._paths import SamplingMethod, run_paths
+from ..methods._paths import SamplingMethod
+from ..tracking import ImpactCounts, weighted_mean
 
 
 @pytree_dataclass
@@ -61,13 +61,6 @@ class ImpactStatistics(Labelled):
         return jnp.where(t > 0, self.mean_count / jnp.where(t > 0, t, 1.0), jnp.nan)
 
 
-def _weighted(weights, values, stderr: bool):
-    """``(mean, stderr or None)`` of per-path ``values`` ``(N, S)`` under ``weights`` ``(N,)``."""
-    mean = jnp.einsum("n,ns->s", weights, values) / jnp.einsum("n,ns->s", weights, jnp.ones_like(values))
-    se = jnp.sqrt(jnp.einsum("n,ns->s", weights * weights, (values - mean[None]) ** 2)) if stderr else None
-    return mean, se
-
-
 def impact_statistics(scene: Scene, method: SamplingMethod, speed_edges=None) -> ImpactStatistics:
     r"""Impact statistics of ``scene`` by a sampling method, at every saved time.
 
@@ -99,14 +92,10 @@ def impact_statistics(scene: Scene, method: SamplingMethod, speed_edges=None) ->
     if edges is None:
         raise ValueError("speed_edges must be concrete numbers, not traced")
     rows, weights, chunk = method.inputs(scene)
-    track = Impacts(scene.impacts, tuple(float(e) for e in edges))
-    _, tracked = run_paths(
-        scene, rows, kind=method.name, chunk_size=chunk, devices=method.devices, progress=method.progress, track=track
-    )
+    _, tracked = method.paths(scene, rows, chunk, track=ImpactCounts(scene.impacts, tuple(float(e) for e in edges)))
     tracked = watch(tracked, INDICATOR)  # counts and indicators: no pathwise derivative
-    sampled = method.name == "monte_carlo"
-    p, p_se = _weighted(weights, tracked[..., 0], sampled)
-    count, count_se = _weighted(weights, tracked[..., 1], sampled)
+    p, p_se = weighted_mean(weights, tracked[..., 0], method.independent)
+    count, count_se = weighted_mean(weights, tracked[..., 1], method.independent)
     density = None
     if len(edges):
         binned = jnp.einsum("n,nsk->sk", weights, tracked[..., 2:])

@@ -8,13 +8,14 @@ from typing import Any
 
 import jax.numpy as jnp
 
-from .._integrate import RunningMax, Stacked, Sums
+from .._integrate import Stacked
 from .._scene import Scene, with_parameters
 from ..methods._ad_guard import INDICATOR, watch
-from ..methods._paths import run_paths
+from ..methods._paths import divergence_bound
 from ..sensitivities._estimators import Score
-from ..sensitivities._sensitivity import _centred_scores
-from ._first_passage import FirstPassage
+from ..sensitivities._scores import centred_scores
+from ..tracking import RunningMaximum, Sums
+from ._passage import FirstPassage
 
 
 @dataclasses.dataclass(frozen=True)
@@ -38,22 +39,15 @@ def sampled_first_passage(method, scene: Scene, query) -> FirstPassage:
     settings = {}
     for name in query.wrt:
         settings.update(query.estimators[name].scores_needed(name, scene))
-    running = RunningMax(query.quantity)
+    bound = divergence_bound(scene)  # the nominal scene's, for every run: the same rule for common paths
+    running = RunningMaximum(query.quantity, None if bound is None else tuple(float(b) for b in bound))
     track = Stacked((running, Sums(Score(tuple(settings), scene.dt)))) if settings else running
 
     def tracked(scene):
-        return run_paths(
-            scene,
-            rows,
-            kind=method.name,
-            chunk_size=chunk,
-            devices=method.devices,
-            progress=method.progress,
-            track=track,
-        )[1]
+        return method.paths(scene, rows, chunk, track=track, checkpoint=query.checkpoint)[1]
 
     nominal = watch(tracked(scene), INDICATOR)
-    sampled = method.name == "monte_carlo"  # independent samples: a sampling standard error
+    sampled = method.independent  # independent samples: a sampling standard error
     out = FirstPassage.from_tracked(scene.save_at, query.levels, nominal[..., :2], weights, method.name, stderr=sampled)
     if not query.wrt:
         return out
@@ -63,7 +57,7 @@ def sampled_first_passage(method, scene: Scene, query) -> FirstPassage:
     scores = {}
     if settings:
         per_time = [
-            _centred_scores(scene, settings, nominal[..., 2:], w, steps, k, dict.fromkeys(settings, 0)) for k in steps
+            centred_scores(scene, settings, nominal[..., 2:], w, steps, k, dict.fromkeys(settings, 0)) for k in steps
         ]
         scores = {n: jnp.stack([s[n] for s in per_time], axis=1) for n in settings}
 

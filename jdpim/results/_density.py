@@ -121,7 +121,7 @@ _MODES = 5  # interval kernel, sigma > (b - a) / 2: cosine modes m <= _MODES (er
 
 def _interval_kernel(u, w, sigma, length):
     r"""The Gaussian kernel of a point at ``w`` reflected at both ends of ``[0, length]``, at ``u`` (both in
-    ``[0, length]``; broadcast), unnormalised by ``sigma`` as in :func:`_kernel_matrix`.
+    ``[0, length]``; broadcast), unnormalised by ``sigma`` as in :func:`kernel_matrix`.
 
     The sum over all images, ``sum_k N(u - w + 2 k L) + N(u + w + 2 k L)``, taken directly where
     ``sigma <= L / 2`` (the images nearer than ``10 sigma``) and as its Fourier series (Poisson's summation)
@@ -146,7 +146,7 @@ def _interval_kernel(u, w, sigma, length):
     return jnp.where(ratio <= 0.5, direct, ratio * series)
 
 
-def _kernel_matrix(grid, samples, sigma, lower=None, upper=None):
+def kernel_matrix(grid, samples, sigma, lower=None, upper=None):
     """``K[g, q]``: kernel of point ``q`` at grid node ``g``, reflected at ``lower`` and ``upper`` where given
     (zero beyond them)."""
     g, s = grid[:, None], samples[None, :]
@@ -203,7 +203,7 @@ def _kde(samples, weights, grid, sigma, lim):
 
     def body(acc, chunk):
         s, w = chunk
-        return acc + _kernel_matrix(flat, s, sigma, *lim) @ w, None
+        return acc + kernel_matrix(flat, s, sigma, *lim) @ w, None
 
     out, _ = jax.lax.scan(body, jnp.zeros(flat.shape, samples.dtype), _chunks(samples, weights))
     return out.reshape(g.shape)
@@ -239,7 +239,7 @@ def _kde_stderr(samples, weights, grid, sigma, lim):
 
     def body(acc, chunk):
         s, w = chunk
-        k = _kernel_matrix(flat, s, sigma, *lim)
+        k = kernel_matrix(flat, s, sigma, *lim)
         w2 = w * w
         return (acc[0] + k @ w, acc[1] + (k * k) @ w2, acc[2] + k @ w2, acc[3] + jnp.sum(w2)), None
 
@@ -273,7 +273,7 @@ def _kde_difference(lo, hi, weights, grid, sigma, lim):
 
     def body(acc, chunk):
         a, b, w = chunk
-        c = _kernel_matrix(flat, b, sigma, *lim) - _kernel_matrix(flat, a, sigma, *lim)
+        c = kernel_matrix(flat, b, sigma, *lim) - kernel_matrix(flat, a, sigma, *lim)
         w2 = w * w
         return (acc[0] + c @ w, acc[1] + (c * c) @ w2, acc[2] + c @ w2, acc[3] + jnp.sum(w2)), None
 
@@ -307,8 +307,8 @@ def _kde_2d(x, v, weights, x_grid, v_grid, sigma_x, sigma_v, lim_x, lim_v):
 
     def body(acc, chunk):
         xs, vs, w = chunk
-        kx = _kernel_matrix(x_grid, xs, sigma_x, *lim_x) * w[None, :]
-        kv = _kernel_matrix(v_grid, vs, sigma_v, *lim_v)
+        kx = kernel_matrix(x_grid, xs, sigma_x, *lim_x) * w[None, :]
+        kv = kernel_matrix(v_grid, vs, sigma_v, *lim_v)
         return acc + kx @ kv.T, None
 
     init = jnp.zeros((x_grid.shape[0], v_grid.shape[0]), x.dtype)

@@ -6,9 +6,11 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
-from .._pytree import check_int, check_points, check_real, pytree_dataclass, static_field
+from .._pytree import check_int, check_points, check_real, plain, pytree_dataclass, static_field
 from .._scene import static_times
+from .._stencils import catmull_rom, lagrange
 from . import _density
 from ._base import COORDINATES, AbstractResult
 from ._samples import _pair
@@ -78,10 +80,6 @@ class GridResult(AbstractResult):
     def __post_init__(self):
         object.__setattr__(self, "times", static_times(self.times))
 
-    @property
-    def saved_times(self) -> tuple[float, ...]:
-        return self.times
-
     def joint(self, t: float | None = None):
         """Nodal joint density at ``t``, shape ``(n_x, n_v)``."""
         return self.density[self._index(t)]
@@ -97,13 +95,28 @@ class GridResult(AbstractResult):
         return self.joint(t) * self.x_weights[:, None] * self.v_weights[None, :]
 
     def _node_values(self, var):
-        """A function of the state evaluated on every node, shape ``(n_x, n_v)``."""
+        """``var`` (a coordinate or a function of the state) on every node, shape ``(n_x, n_v)``."""
+        which = self._coordinate(var)
         xx, vv = jnp.meshgrid(self.x, self.v, indexing="ij")
-        states = jnp.stack([xx.ravel(), vv.ravel()], axis=-1)
-        return jax.vmap(var)(states).reshape(xx.shape)
+        if not callable(which):
+            return (xx, vv)[which]
+        return jax.vmap(which)(jnp.stack([xx.ravel(), vv.ravel()], axis=-1)).reshape(xx.shape)
 
-    def _reflect(self, var):
-        return self.x[0] if var == "x" and self.has_barrier else None
+    def bounds(self, var):
+        """``(lower, upper)`` of ``var``: the barrier ``x[0]`` below ``"x"`` where there is one, else ``None``. The
+        grid's open edges bound no quantity (what reaches them is lost: ``edge_mass``)."""
+        self._coordinate(var)
+        return (self.x[0] if var == "x" and self.has_barrier else None), None
+
+    def _limits(self, var, bounds):
+        """The kernel's ``(lower, upper)`` for ``var``: ``bounds`` (checked) or :meth:`bounds`."""
+        return self.bounds(var) if bounds is None else _density.limits(None, bounds)
+
+    def atoms(self, var, t: float | None = None, *, bounds=None):
+        """Probability held at the bounds of ``var`` at ``t``: ``[0, 0]``, a grid density holds no point mass."""
+        self._index(t)
+        self._limits(var, bounds)
+        return jnp.zeros(2, self.density.dtype)
 
     def nodal_marginal(self, var: str, t: float | None = None):
         """Marginal density of ``var`` on its grid nodes (the solver's quadrature over the other variable)."""
@@ -113,8 +126,6 @@ class GridResult(AbstractResult):
 
     def _interpolate(self, values, var: str, points):
         """``values`` on the nodes of ``var`` (first axis) at ``points`` with the solver's interpolation."""
-        from ..methods._pi_operator import catmull_rom, lagrange  # the solver's own functions (methods import results)
-
         nodes, _ = self._axis(var)
         g = jnp.atleast_1d(jnp.asarray(points, dtype=values.dtype))
         t = (g - nodes[0]) / (nodes[1] - nodes[0])
@@ -129,7 +140,7 @@ class GridResult(AbstractResult):
         rows = values[start[:, None] + ghost + jnp.arange(w.shape[-1])[None, :]]  # (G, points, ...)
         return jnp.einsum("gk...,gk->g...", rows, w)
 
-    def pdf(self, var, grid, t: float | None = None, *, bandwidth=None, rule: str = "chen"):
+    def pdf(self, var, grid, t: float | None = None, *, bandwidth=None, rule: str = "chen", bounds=None):
         """Marginal PDF of ``var`` at ``t`` on ``grid`` (a scalar or 1-D, one point or more); shaped like ``grid``.
 
         Args:
@@ -138,47 +149,75 @@ class GridResult(AbstractResult):
             t: a saved time, s (may be left out for a stationary density or a single saved time).
             bandwidth: ``None``: a coordinate's density is interpolated between the nodes with the solver's
                 functions (no smoothing). A number (> 0): the grid density smoothed with the Gaussian kernel
-                of that standard deviation (reflected at the barrier for ``"x"``), the density the sampling
-                methods estimate at that bandwidth.
+                of that standard deviation, the density the sampling methods estimate at that bandwidth.
             rule: for a function of the state without ``bandwidth``: the bandwidth rule applied to the nodes
                 weighted by their probabilities (see ``jdpim.bandwidth``).
+            bounds: ``(a, b)``, the range of ``var`` at whose ends kernels are reflected (``None``: :meth:`bounds`,
+                the barrier for ``"x"``); for kernel densities (a ``bandwidth``, or a function of the state).
         """
         check_points("grid", grid)
+        _check_rule(rule)
+        lim = self._limits(var, bounds)
         if callable(self._coordinate(var)):
             y, w = self._node_values(var).ravel(), self._node_masses(t).ravel()
             sigma = _density.bandwidth(y, w, rule, dim=1) if bandwidth is None else _checked(bandwidth)
-            return _density.kde(y, w, jnp.asarray(grid, y.dtype), sigma, None)
+            return _density.kde(y, w, jnp.asarray(grid, y.dtype), sigma, bounds=lim)
         if bandwidth is not None:
             nodes, weights = self._axis(var)
-            k = _density._kernel_matrix(jnp.asarray(grid, nodes.dtype), nodes, _checked(bandwidth), self._reflect(var))
+            g = jnp.atleast_1d(jnp.asarray(grid, nodes.dtype))
+            k = _density.kernel_matrix(g, nodes, _checked(bandwidth), *lim)
             return jnp.reshape(k @ (weights * self.nodal_marginal(var, t)), jnp.shape(grid))
+        _interpolated(var, bounds)
         out = self._interpolate(self.nodal_marginal(var, t), var, grid)
         return jnp.reshape(out, jnp.shape(grid))
 
-    def joint_pdf(self, vars, grids, t: float | None = None, *, bandwidth=None):
-        """Joint PDF of ``vars`` (``("x", "v")`` or ``("v", "x")``) at ``t``; shape ``(len(grids[0]), len(grids[1]))``.
+    def joint_pdf(self, vars, grids, t: float | None = None, *, bandwidth=None, rule: str = "chen", bounds=None):
+        """Joint PDF of ``vars`` at ``t``; shape ``(len(grids[0]), len(grids[1]))`` (a scalar grid drops its axis).
 
-        A scalar grid drops its axis. ``bandwidth``: ``None`` (interpolated) or a pair of kernel standard
-        deviations (the grid density smoothed, as in :meth:`pdf`).
+        The coordinates ``("x", "v")`` (or ``("v", "x")``) are interpolated without ``bandwidth``, or smoothed with
+        the pair of kernel standard deviations ``bandwidth`` (as in :meth:`pdf`). A pair with a function of the
+        state is the product-kernel density of the nodes weighted by their probabilities (``bandwidth`` ``None``:
+        ``rule`` with the 2-D exponent). ``bounds``: a pair of ranges, each ``(a, b)`` or ``None`` (that quantity's
+        :meth:`bounds`), for kernel densities.
         """
         (va, vb), (ga, gb) = _pair("vars", vars), _pair("grids", grids)
-        if sorted(map(str, (va, vb))) != ["v", "x"]:
-            raise ValueError(f"vars of a grid result's joint density must be ('x', 'v') or ('v', 'x'), got {vars!r}")
         for name, g in (("grids[0]", ga), ("grids[1]", gb)):
             check_points(name, g)
+        _check_rule(rule)
+        ba, bb = (None, None) if bounds is None else _pair("bounds", bounds)
+        lim_a, lim_b = self._limits(va, ba), self._limits(vb, bb)
+        if bandwidth is not None and (np.ndim(bandwidth) != 1 or len(bandwidth) != 2):
+            raise ValueError(f"bandwidth must be None or a pair (sigma_1, sigma_2), got {plain(bandwidth)!r}")
+        if callable(self._coordinate(va)) or callable(self._coordinate(vb)):
+            w = self._node_masses(t).ravel()
+            a, b = self._node_values(va).ravel(), self._node_values(vb).ravel()
+            if bandwidth is None:
+                sa, sb = _density.bandwidth(a, w, rule, dim=2), _density.bandwidth(b, w, rule, dim=2)
+            else:
+                sa, sb = (_checked(h) for h in bandwidth)
+            ga, gb = jnp.asarray(ga, a.dtype), jnp.asarray(gb, a.dtype)
+            return _density.kde_2d(a, b, w, ga, gb, sa, sb, x_bounds=lim_a, v_bounds=lim_b)
+        if sorted((va, vb)) != ["v", "x"]:
+            raise ValueError(
+                f"vars of a grid result's joint density must be ('x', 'v'), ('v', 'x') or hold a function of the "
+                f"state, got {vars!r}"
+            )
         if va == "v":
-            out = self.joint_pdf(("x", "v"), (gb, ga), t, bandwidth=None if bandwidth is None else bandwidth[::-1])
+            out = self.joint_pdf(
+                ("x", "v"),
+                (gb, ga),
+                t,
+                bandwidth=None if bandwidth is None else bandwidth[::-1],
+                bounds=None if bounds is None else (bb, ba),
+            )
             return jnp.swapaxes(out, 0, -1) if jnp.ndim(out) == 2 else out
         if bandwidth is not None:
-            if len(bandwidth) != 2:
-                raise ValueError(f"bandwidth must be None or a pair (sigma_x, sigma_v), got {bandwidth!r}")
             dtype = self.x.dtype
-            kx = _density._kernel_matrix(
-                jnp.atleast_1d(jnp.asarray(ga, dtype)), self.x, _checked(bandwidth[0]), self._reflect("x")
-            )
-            kv = _density._kernel_matrix(jnp.atleast_1d(jnp.asarray(gb, dtype)), self.v, _checked(bandwidth[1]), None)
+            kx = _density.kernel_matrix(jnp.atleast_1d(jnp.asarray(ga, dtype)), self.x, _checked(bandwidth[0]), *lim_a)
+            kv = _density.kernel_matrix(jnp.atleast_1d(jnp.asarray(gb, dtype)), self.v, _checked(bandwidth[1]), *lim_b)
             out = kx @ self._node_masses(t) @ kv.T
         else:
+            _interpolated(vars, bounds)
             px = self._interpolate(self.joint(t), "x", ga)  # (Gx, n_v)
             out = self._interpolate(px.T, "v", gb).T  # (Gx, Gv)
         return jnp.reshape(out, jnp.shape(ga) + jnp.shape(gb))
@@ -207,19 +246,41 @@ class GridResult(AbstractResult):
             )
         return self.coarse
 
-    def pdf_error(self, var: str, grid, t: float | None = None):
-        """Estimated discretisation error of :meth:`pdf`: ``|pdf - pdf on the coarse grid|``, shaped like ``grid``.
+    def pdf_error(self, var, grid, t: float | None = None, *, bandwidth=None, rule: str = "chen", bounds=None):
+        """Estimated discretisation error of :meth:`pdf` (same arguments): ``|pdf - pdf on the coarse grid|`` at the
+        same bandwidth, shaped like ``grid``; it takes the place of a standard error (path integration has no
+        sampling error). Needs ``jdpim.PathIntegration(estimate_error=True)``.
 
         For a scheme that converges at first order or faster in the spacings and the step, this bounds the
         error of the fine grid (asymptotically); ``docs/path_integration.md`` measures how far it covers it.
         """
-        return jnp.abs(self.pdf(var, grid, t) - self._coarse().pdf(var, grid, t))
+        coarse = self._coarse()
+        if bandwidth is None and callable(self._coordinate(var)):
+            _check_rule(rule)
+            w = self._node_masses(t).ravel()
+            bandwidth = _density.bandwidth(self._node_values(var).ravel(), w, rule, dim=1)
+        kw = {"bandwidth": bandwidth, "rule": rule, "bounds": bounds}
+        return jnp.abs(self.pdf(var, grid, t, **kw) - coarse.pdf(var, grid, t, **kw))
 
     def l1_error(self, var: str, t: float | None = None):
         """Estimated L1 error of the marginal of ``var``: ``int |p - p_coarse|`` over the fine grid's nodes."""
         nodes, weights = self._axis(var)
         coarse = self._coarse().pdf(var, nodes, t)
         return jnp.sum(weights * jnp.abs(self.nodal_marginal(var, t) - coarse))
+
+
+def _check_rule(rule):
+    if rule not in _density.RULES:
+        raise ValueError(f"rule must be one of {_density.RULES}, got {rule!r}")
+
+
+def _interpolated(var, bounds):
+    """Refuse ``bounds`` for an interpolated density (no kernel to reflect)."""
+    if bounds is not None:
+        raise ValueError(
+            f"bounds={plain(bounds)!r} for the interpolated grid density of {var!r}: bounds apply to kernel densities; "
+            "give a bandwidth (or leave bounds out: the grid density is zero below the barrier)"
+        )
 
 
 def _checked(bandwidth):

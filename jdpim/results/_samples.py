@@ -10,7 +10,7 @@ import numpy as np
 
 from .._pytree import check_grid, check_points, check_real, concrete, plain, pytree_dataclass, static_field
 from .._scene import static_times
-from .._tangents import watch, watch_forward
+from .._tangents import PROJECTIONS, projections, watch, watch_forward
 from . import _density
 from ._base import COORDINATES, AbstractResult
 
@@ -109,12 +109,15 @@ class Result(AbstractResult):
         barrier: barrier position (the displacement kernel is reflected there), or ``None``; for several
             degrees of freedom a mapping ``{coordinate: lower bound}`` of the coordinates a constraint bounds.
             Used where ``constraints`` is empty.
-        method: ``"dpim"`` or ``"monte_carlo"``.
+        method: the name of the method that made it, ``"dpim"`` or ``"monte_carlo"`` (a label).
         coordinates: names of the state's entries, ``("x", "v")`` for one degree of freedom.
         constraints: the model's unilateral constraints as :class:`Planes` (the barrier of one degree of freedom
             as the normal ``(1,)``), or ``None``: they bound coordinates and derived quantities (see
             :meth:`bounds`), whose densities are reflected at both ends, with the probability held at a bound
             reported by :meth:`atoms`.
+        independent: whether the paths are independent samples (Monte Carlo), so that estimates from them have
+            sampling standard errors (:meth:`pdf_error`, ``jdpim.response_moments``); set by the method that
+            made the result (its class attribute ``independent``). DPIM points are chosen together: ``False``.
 
     Results are pytrees (leaves: ``states``, ``weights``, ``barrier``, the constraints' positions and
     restitutions): they pass through ``jax.jit`` and ``jax.vmap`` as arguments and outputs. The interface is
@@ -128,6 +131,7 @@ class Result(AbstractResult):
     method: str = static_field(default="dpim")
     coordinates: tuple = static_field(default=COORDINATES)
     constraints: Planes | None = None
+    independent: bool = static_field(default=False)
 
     def __post_init__(self):
         object.__setattr__(self, "times", static_times(self.times))
@@ -290,10 +294,10 @@ class Result(AbstractResult):
         DPIM points are not independent samples: their error comes from randomised point sets
         (``jdpim.dpim_replicates``).
         """
-        if self.method != "monte_carlo":
+        if not self.independent:
             raise ValueError(
-                f"pdf_error of a sampling result needs independent samples (method 'monte_carlo'), got method "
-                f"{self.method!r}; for DPIM use jdpim.dpim_replicates"
+                f"pdf_error of a sampling result needs independent samples (Result.independent, Monte Carlo), got "
+                f"method {self.method!r}; for DPIM use jdpim.dpim_replicates"
             )
         check_points("grid", grid)
         lim = self._limits(var, t, bounds)
@@ -330,9 +334,11 @@ class Result(AbstractResult):
             if np.ndim(bandwidth) != 1 or len(bandwidth) != 2:
                 raise ValueError(f"bandwidth must be None or a pair (sigma_1, sigma_2), got {plain(bandwidth)!r}")
             sa, sb = (self._sigma(s, None) for s in bandwidth)
+        ga, gb = jnp.asarray(ga), jnp.asarray(gb)
+        a, b = watch_forward((a, b), jax.tree_util.Partial(_joint_contributions, w, (ga, gb), (sa, sb), (lim_a, lim_b)))
         if _unbounded(lim_a) and not _unbounded(lim_b):  # the bounded quantity goes first
-            return _density.kde_2d(b, a, w, jnp.asarray(gb), jnp.asarray(ga), sb, sa, x_bounds=lim_b).T
-        return _density.kde_2d(a, b, w, jnp.asarray(ga), jnp.asarray(gb), sa, sb, x_bounds=lim_a, v_bounds=lim_b)
+            return _density.kde_2d(b, a, w, gb, ga, sb, sa, x_bounds=lim_b).T
+        return _density.kde_2d(a, b, w, ga, gb, sa, sb, x_bounds=lim_a, v_bounds=lim_b)
 
     def histogram(self, var, edges, t: float | None = None):
         """Weighted histogram density of ``var`` at time ``t`` on bin ``edges``; shape ``(len(edges) - 1,)``."""
@@ -360,8 +366,28 @@ def _kernel_contributions(weights, grid, sigma, lim, y, y_dot):
     """Per-path contributions ``(N, G)`` to the forward-mode derivative of :meth:`Result.pdf`."""
     ok = jnp.isfinite(y)
     y = jnp.where(ok, y, 0.0)
-    dk = jax.jvp(lambda s: _density._kernel_matrix(jnp.atleast_1d(grid), s, sigma, *lim), (y,), (y_dot,))[1]
+    dk = jax.jvp(lambda s: _density.kernel_matrix(jnp.atleast_1d(grid), s, sigma, *lim), (y,), (y_dot,))[1]
     return jnp.where(ok[:, None], (weights[None, :] * dk).T, 0.0)
+
+
+def _joint_contributions(weights, grids, sigmas, lims, y, y_dot):
+    """Per-path contributions to the forward-mode derivative of :meth:`Result.joint_pdf`: ``(N, Ga Gb)``, or
+    their ``(N, PROJECTIONS)`` projections (``jdpim._tangents.projections``) on more than ``PROJECTIONS`` nodes,
+    formed without the ``(N, Ga, Gb)`` array."""
+    ok = jnp.isfinite(y[0]) & jnp.isfinite(y[1])
+
+    def kernel(i):  # (G_i, N) kernel matrix of quantity i and its tangent
+        g, h, lim = jnp.atleast_1d(grids[i]), sigmas[i], lims[i]
+        return jax.jvp(lambda s: _density.kernel_matrix(g, s, h, *lim), (jnp.where(ok, y[i], 0.0),), (y_dot[i],))
+
+    (ka, dka), (kb, dkb) = kernel(0), kernel(1)
+    ga, gb = ka.shape[0], kb.shape[0]
+    if ga * gb <= PROJECTIONS:
+        c = (jnp.einsum("an,bn->nab", dka, kb) + jnp.einsum("an,bn->nab", ka, dkb)).reshape(-1, ga * gb)
+    else:
+        r = jnp.asarray(projections(ga * gb).reshape(ga, gb, PROJECTIONS), ka.dtype)
+        c = jnp.einsum("an,abk,bn->nk", dka, r, kb) + jnp.einsum("an,abk,bn->nk", ka, r, dkb)
+    return jnp.where(ok[:, None], weights[:, None] * c, 0.0)
 
 
 def _moment_contributions(weights, order, y, y_dot):

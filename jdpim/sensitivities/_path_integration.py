@@ -66,7 +66,7 @@ def grid_sensitivity(scene: Scene, settings: PathIntegration, query, nominal=Non
     return value, stderr, dict.fromkeys(query.wrt, used)
 
 
-def _check_start(t: float, settings: PathIntegration) -> None:
+def check_start(t: float, settings: PathIntegration) -> None:
     """Warn when ``t`` is so close to the start that the linearised start density at ``t0`` shows."""
     if t < START_HORIZONS * settings.t0:
         fix = (
@@ -85,7 +85,7 @@ def _check_start(t: float, settings: PathIntegration) -> None:
         )
 
 
-def _check_noise_resolution(scene: Scene, settings: PathIntegration, res) -> None:
+def check_noise_resolution(scene: Scene, settings: PathIntegration, res) -> None:
     """Warn when one half step's diffusion spans too few velocity spacings for a derivative in ``D``."""
     model = scene.model
     gains = jnp.atleast_1d(model.gains(res.x[0], jnp.zeros((), res.x.dtype)))
@@ -115,9 +115,9 @@ def path_integration_sensitivity(nominal, values: dict, var: str, grid, t, bandw
     """
     run_scene, fixed, res = nominal
     if not fixed.stationary:
-        _check_start(t, fixed)
+        check_start(t, fixed)
     if "D" in values:
-        _check_noise_resolution(run_scene, fixed, res)
+        check_noise_resolution(run_scene, fixed, res)
 
     def pdf_of(vals):
         s = with_parameters(run_scene, vals)

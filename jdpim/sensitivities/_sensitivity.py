@@ -30,7 +30,6 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from .._integrate import Sums
 from .._io import Persistent
 from .._models import AbstractOscillator
 from .._pytree import check_real, concrete, real_array
@@ -38,10 +37,12 @@ from .._scene import Scene, parameter_names, parameter_value, with_parameters
 from .._tangents import effective_paths, warn_if_unreliable
 from ..methods._base import AbstractMethod
 from ..methods._monte_carlo import MonteCarlo
-from ..methods._paths import _is_traced, run_paths
-from ..results._density import _kernel_matrix
+from ..methods._path_integration import PathIntegration
+from ..methods._paths import SamplingMethod, is_traced
 from ..results._density import bandwidth as rule_bandwidth
+from ..results._density import kernel_matrix
 from ..results._samples import Result
+from ..tracking import Sums
 from ._estimators import (
     CentralDifference,
     LikelihoodRatio,
@@ -52,15 +53,14 @@ from ._estimators import (
     check_likelihood_ratio,
     noise_scaling_applies,
     warn_if_noisy,
-    window_of,
 )
 from ._path_integration import default_settings, grid_sensitivity, nominal_run
+from ._scores import CHUNK, centred_scores, finite_weights, moments, score_windows
 from ._several_dof import several_dof_sensitivity
 
 VARIABLES = ("x", "v", "xv")
 DEFAULT_PATHS = 100_000  # Monte Carlo paths of method=None where path integration does not apply: ~5 %
 EXPLOSION = 1e3  # |theta dp/dtheta| / max p above which a pathwise result is flagged
-_CHUNK = 512
 
 
 def _nominal(scene: Scene, name: str):
@@ -77,29 +77,29 @@ class Sensitivity(Persistent, Mapping):
 
     Attributes:
         value: ``{name: array}``, shaped like the PDF, in PDF units per parameter unit.
-        stderr: ``{name: array}`` of the same shapes: the sampling error (NaN for ``Pathwise(mode="reverse")``,
+        value_stderr: ``{name: array}`` of the same shapes: the sampling error (NaN for ``Pathwise(mode="reverse")``,
             which does not estimate it; zero for path integration, which has none).
         estimators: ``{name: estimator}`` actually used (the ``PathIntegration`` settings for path integration).
-        t: the time of the derivative, s (``inf`` for a stationary density).
+        times: ``(t,)``, the time of the derivative, s (``inf`` for a stationary density).
         method: ``"path_integration"``, ``"dpim"`` or ``"monte_carlo"``.
 
-    A pytree (leaves: the arrays of ``value`` and ``stderr``): it passes through ``jax.jit`` and ``jax.vmap``.
+    A pytree (leaves: the arrays of ``value`` and ``value_stderr``): it passes through ``jax.jit`` and ``jax.vmap``.
     """
 
     value: dict
-    stderr: dict
+    value_stderr: dict
     estimators: dict
-    t: float
+    times: tuple
     method: str = "dpim"
 
     def tree_flatten(self):
-        """Leaves: the arrays of ``value`` and ``stderr``; the estimators, ``t`` and ``method`` are structure."""
-        return (self.value, self.stderr), (tuple(self.estimators.items()), self.t, self.method)
+        """Leaves: the arrays of ``value`` and ``value_stderr``; estimators, ``times`` and ``method``: structure."""
+        return (self.value, self.value_stderr), (tuple(self.estimators.items()), self.times, self.method)
 
     @classmethod
     def tree_unflatten(cls, aux, children):
-        estimators, t, method = aux
-        return cls(*children, dict(estimators), t, method)
+        estimators, times, method = aux
+        return cls(*children, dict(estimators), times, method)
 
     def __getitem__(self, name):
         return self.value[name]
@@ -162,44 +162,14 @@ def _kernel(var: str, grid, sigma, barrier):
 
     def kern(x, v):
         if var == "x":
-            return _kernel_matrix(grid, x, sigma, barrier).T
+            return kernel_matrix(grid, x, sigma, barrier).T
         if var == "v":
-            return _kernel_matrix(grid, v, sigma, None).T
-        kx = _kernel_matrix(grid[0], x, sigma[0], barrier).T
-        kv = _kernel_matrix(grid[1], v, sigma[1], None).T
+            return kernel_matrix(grid, v, sigma, None).T
+        kx = kernel_matrix(grid[0], x, sigma[0], barrier).T
+        kv = kernel_matrix(grid[1], v, sigma[1], None).T
         return kx[:, :, None] * kv[:, None, :]
 
     return kern
-
-
-def _moments(contribution, inputs, weights):
-    """``sum_i w_i c_i`` and its standard error ``sqrt(sum_i w_i^2 (c_i - mean)^2)``, over chunks of paths."""
-    n = weights.shape[0]
-    size = min(_CHUNK, n)
-    pad = (-n) % size
-    chunks = jax.tree_util.tree_map(
-        lambda a: jnp.pad(a, [(0, pad)] + [(0, 0)] * (a.ndim - 1)).reshape(-1, size, *a.shape[1:]), (inputs, weights)
-    )
-
-    def body(acc, chunk):
-        inp, w = chunk
-        c = contribution(*inp)
-        ww = w * w
-        terms = ((w, c), (ww, c * c), (ww, c))
-        return tuple(a + jnp.tensordot(u, b, axes=1) for a, (u, b) in zip(acc, terms, strict=True)), None
-
-    shape = jax.eval_shape(contribution, *jax.tree_util.tree_map(lambda a: a[0], chunks[0])).shape[1:]
-    zeros = jnp.zeros(shape, weights.dtype)
-    (s1, s2, s3), _ = jax.lax.scan(body, (zeros, zeros, zeros), chunks)
-    var = s2 - 2.0 * s1 * s3 + s1 * s1 * jnp.sum(weights * weights)
-    return s1, jnp.sqrt(jnp.maximum(var, 0.0))
-
-
-def _finite_weights(weights, *arrays):
-    ok = jnp.ones(weights.shape, bool)
-    for a in arrays:
-        ok = ok & jnp.all(jnp.isfinite(a.reshape(a.shape[0], -1)), axis=1)
-    return jnp.where(ok, weights, 0.0), [jnp.where(ok.reshape((-1,) + (1,) * (a.ndim - 1)), a, 0.0) for a in arrays]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -269,8 +239,8 @@ def sensitivity(
 
     Returns:
         :class:`Sensitivity`: ``name -> array`` shaped like the PDF (``(G,)`` or ``(Gx, Gv)``), with
-        ``.value``, ``.stderr``, ``.estimators`` and ``.method``. Path integration has no sampling error:
-        its ``stderr`` is zero and ``estimators`` holds the ``PathIntegration`` settings used (its grid
+        ``.value``, ``.value_stderr``, ``.estimators`` and ``.method``. Path integration has no sampling error:
+        its ``value_stderr`` is zero and ``estimators`` holds the ``PathIntegration`` settings used (its grid
         error, measured in docs/gradients.md, is about 1e-3 relative at the defaults). A
         :class:`SensitivityWarning` flags pathwise results beyond their horizon, exploding or carried by few
         paths, results whose standard error exceeds a quarter of their size, non-finite path-integration
@@ -288,12 +258,12 @@ def sensitivity(
         >>> scene = jdpim.Scene(model, noise=jdpim.WhiteNoise(D=0.05), t_end=2.0, dt=0.02)
         >>> grid = np.linspace(-1.0, 1.0, 9)
         >>> dp = jdpim.sensitivity(scene, ("alpha",), "v", grid, method=jdpim.MonteCarlo(n_samples=2000))
-        >>> dp["alpha"].shape, type(dp.estimators["alpha"]).__name__, bool(np.all(dp.stderr["alpha"] > 0))
+        >>> dp["alpha"].shape, type(dp.estimators["alpha"]).__name__, bool(np.all(dp.value_stderr["alpha"] > 0))
         ((9,), 'Pathwise', True)
     """
     if not isinstance(scene, Scene):
         raise TypeError(f"scene must be a jdpim.Scene, got {type(scene).__name__}")
-    if isinstance(jnp.zeros(()), jax.core.Tracer) or _is_traced((scene, grid)):
+    if isinstance(jnp.zeros(()), jax.core.Tracer) or is_traced((scene, grid)):
         raise TypeError(
             "jdpim.sensitivity cannot run under a JAX transformation (jit, vmap, grad): it picks its method and "
             "checks its estimates on concrete values; call it outside, or transform jdpim.solve or "
@@ -333,15 +303,15 @@ def sensitivity(
         value, stderr, estimators, method = several_dof_sensitivity(
             scene, wrt, var, grid, t, method, bandwidth, rule, estimator
         )
-        return Sensitivity(value, stderr, estimators, float(t), method.name)
+        return Sensitivity(value, stderr, estimators, (float(t),), method.name)
     values = {name: _nominal(scene, name) for name in wrt}
     query = Query(wrt, values, var, grid, t, bandwidth, rule, estimator)
     if method is None:
         method, answer = _default_method(scene, query)
     else:
-        answer = method.sensitivity(scene, query)
+        answer = _answer(scene, method, query)
     value, stderr, estimators = answer
-    return Sensitivity({n: value[n] for n in wrt}, {n: stderr[n] for n in wrt}, estimators, float(t), method.name)
+    return Sensitivity({n: value[n] for n in wrt}, {n: stderr[n] for n in wrt}, estimators, (float(t),), method.name)
 
 
 def _default_method(scene: Scene, query: Query):
@@ -356,7 +326,17 @@ def _default_method(scene: Scene, query: Query):
         else:
             return settings, grid_sensitivity(scene, settings, query, nominal)
     method = MonteCarlo(n_samples=DEFAULT_PATHS)
-    return method, method.sensitivity(scene, query)
+    return method, sampled_sensitivity(scene, method, query)
+
+
+def _answer(scene: Scene, method: AbstractMethod, query: Query):
+    """``(value, stderr, estimators)`` of ``query`` through the primitive ``method`` offers: a sampling method's
+    paths, or path integration's solver."""
+    if isinstance(method, SamplingMethod):
+        return sampled_sensitivity(scene, method, query)
+    if isinstance(method, PathIntegration):
+        return grid_sensitivity(scene, method, query)
+    raise ValueError(f"{type(method).__name__} has no density derivatives; use jdpim.MonteCarlo or jdpim.DPIM")
 
 
 def sampled_sensitivity(scene: Scene, method, query: Query):
@@ -366,16 +346,15 @@ def sampled_sensitivity(scene: Scene, method, query: Query):
     if bandwidth == "adaptive" and not all(e.joint for e in estimators.values()):
         raise ValueError("bandwidth='adaptive' needs the Pathwise estimator for every parameter")
     rows, weights, chunk = method.inputs(scene)
-    kind = method.name
     value, stderr = {}, {}
     pathwise = [n for n in wrt if estimators[n].joint]
     if pathwise:
-        v, e = _pathwise(scene, pathwise, estimators, query, kind, rows, weights, chunk)
+        v, e = _pathwise(scene, pathwise, estimators, query, method, rows, weights, chunk)
         value.update(v)
         stderr.update(e)
     rest = [n for n in wrt if n not in pathwise]
     if rest:
-        v, e = _sampled(scene, rest, estimators, query, kind, rows, weights, chunk)
+        v, e = _sampled(scene, rest, estimators, query, method, rows, weights, chunk)
         value.update(v)
         stderr.update(e)
         for name in rest:
@@ -397,10 +376,17 @@ def _pathwise(scene, names, estimators, query: Query, method, rows, weights, chu
     horizon = min(estimators[n].horizon for n in names)
 
     def result(states):
-        return Result(times=scene.save_at, states=states, weights=weights, barrier=barrier, method=method)
+        return Result(
+            times=scene.save_at,
+            states=states,
+            weights=weights,
+            barrier=barrier,
+            method=method.name,
+            independent=method.independent,
+        )
 
     def paths(vals):
-        s = run_paths(with_parameters(scene, vals), rows, kind=method, chunk_size=chunk)
+        s = method.paths(with_parameters(scene, vals), rows, chunk)
         return s, s
 
     def density(states):
@@ -414,7 +400,7 @@ def _pathwise(scene, names, estimators, query: Query, method, rows, weights, chu
     tangents, states = jax.jacfwd(paths, has_aux=True)(sub)
     res = result(states)
     index = scene.time_index(t)
-    w, (x, v) = _finite_weights(weights, states[:, index, 0], states[:, index, 1])
+    w, (x, v) = finite_weights(weights, states[:, index, 0], states[:, index, 1])
     p = density(states)
     sigma = [jax.lax.stop_gradient(s) for s in _sigmas(res, var, t, bandwidth, rule)]  # "adaptive": its error
     kern = _kernel(var, grid, sigma if var == "xv" else sigma[0], barrier)
@@ -425,7 +411,7 @@ def _pathwise(scene, names, estimators, query: Query, method, rows, weights, chu
     value, stderr = {}, {}
     for n in names:
         dx, dv = (jnp.where(w > 0, tangents[n][:, index, k], 0.0) for k in (0, 1))
-        value[n], stderr[n] = jax.jit(_moments, static_argnums=0)(contribution, (x, v, dx, dv), w)
+        value[n], stderr[n] = jax.jit(moments, static_argnums=0)(contribution, (x, v, dx, dv), w)
         n_eff = effective_paths(jax.jit(_squared_norms, static_argnums=0)(contribution, (x, v, dx, dv), w))
         size = float(jnp.linalg.norm(value[n]))
         warn_if_unreliable(w.shape[0], n_eff, float(jnp.linalg.norm(stderr[n])) / size if size > 0 else math.inf, 5)
@@ -440,7 +426,7 @@ def _pathwise(scene, names, estimators, query: Query, method, rows, weights, chu
 def _squared_norms(contribution, inputs, weights):
     """``(N,)`` squared norms over the grid of the per-path contributions ``w_i c_i``, chunk by chunk."""
     n = weights.shape[0]
-    size = min(_CHUNK, n)
+    size = min(CHUNK, n)
     pad = (-n) % size
     chunks = jax.tree_util.tree_map(
         lambda a: jnp.pad(a, [(0, pad)] + [(0, 0)] * (a.ndim - 1)).reshape(-1, size, *a.shape[1:]), (inputs, weights)
@@ -489,7 +475,7 @@ class PathContext:
         grid_ndim: number of grid axes (1, or 2 for ``"xv"``).
         scores: ``{name: (N,)}`` centred Girsanov scores (per parameter unit) of the names in ``scores_needed``.
         run_scene: ``scene`` saving only at ``t`` and the score windows' starts; ``index``: ``t``'s save slot.
-        rows, path_weights, method, chunk: the sampling method's inputs (``method.inputs``) and its name.
+        rows, path_weights, chunk: the sampling method's inputs (``method.inputs``); method: the method.
     """
 
     scene: Scene
@@ -504,7 +490,7 @@ class PathContext:
     index: int
     rows: Any
     path_weights: Any
-    method: str
+    method: SamplingMethod
     chunk: Any
 
     def per_path(self, s):
@@ -513,7 +499,7 @@ class PathContext:
 
     def moments(self, contribution, inputs: tuple, weights=None):
         """``(value, stderr)`` of the per-path ``contribution(*inputs)``, weighted by ``weights`` or ``.weights``."""
-        return jax.jit(_moments, static_argnums=0)(contribution, inputs, self.weights if weights is None else weights)
+        return jax.jit(moments, static_argnums=0)(contribution, inputs, self.weights if weights is None else weights)
 
     def rerun(self, name: str, values: Sequence[float]):
         """``(weights, [states])``: the common paths with ``name`` at each value in turn, states ``(N, 2)`` at ``t``.
@@ -523,8 +509,8 @@ class PathContext:
         ends = []
         for val in values:
             s = with_parameters(self.run_scene, {name: val})
-            ends.append(run_paths(s, self.rows, kind=self.method, chunk_size=self.chunk)[:, self.index])
-        return _finite_weights(self.path_weights, *ends)
+            ends.append(self.method.paths(s, self.rows, self.chunk)[:, self.index])
+        return finite_weights(self.path_weights, *ends)
 
 
 def _sampled(scene, names, estimators, query: Query, method, rows, weights, chunk):
@@ -541,11 +527,11 @@ def _context(scene, names, estimators, query: Query, method, rows, weights, chun
     settings = _score_settings(scene, names, estimators)
     k_t, starts, times, run_scene = score_windows(scene, settings, query.t)
     score = Sums(Score(tuple(settings), scene.dt)) if settings else None
-    out = run_paths(run_scene, rows, kind=method, chunk_size=chunk, track=score)
+    out = method.paths(run_scene, rows, chunk, track=score)
     states, sums = out if score is not None else (out, None)
     it = times.index(k_t)
-    w, (x, v) = _finite_weights(weights, states[:, it, 0], states[:, it, 1])
-    scores = _centred_scores(scene, settings, sums, w, times, k_t, starts) if score is not None else {}
+    w, (x, v) = finite_weights(weights, states[:, it, 0], states[:, it, 1])
+    scores = centred_scores(scene, settings, sums, w, times, k_t, starts) if score is not None else {}
     return PathContext(
         scene=scene,
         values=query.values,
@@ -564,17 +550,6 @@ def _context(scene, names, estimators, query: Query, method, rows, weights, chun
     )
 
 
-def score_windows(scene, settings: dict, t: float):
-    """``(k_t, starts, times, run_scene)`` of a run that tracks the scores of ``settings`` up to ``t``: the step of
-    ``t``, ``{name: step}`` where each window starts (0: the whole history), the steps to save (``t`` and the
-    windows' starts) and ``scene`` saving at them."""
-    dt = scene.dt
-    k_t = int(round(t / dt))
-    starts = {n: max(0, k_t - int(round(min(window_of(e, scene.model), t) / dt))) for n, e in settings.items()}
-    times = sorted({k_t} | {k for k in starts.values() if k > 0})
-    return k_t, starts, times, scene.replace(save_at=tuple(k * dt for k in times))
-
-
 def _score_settings(scene, names, estimators) -> dict:
     """``{name: LikelihoodRatio}``: scores to accumulate, with a name's own settings, else the first asker's."""
     asked = [(n, k, e) for n in names for k, e in estimators[n].scores_needed(n, scene).items()]
@@ -582,26 +557,6 @@ def _score_settings(scene, names, estimators) -> dict:
     for _, k, e in asked:
         settings.setdefault(k, e)
     return settings
-
-
-def _centred_scores(scene, settings: dict, sums, w, times: list, k_t: int, starts: dict) -> dict:
-    """``{name: (N,)}`` scores ``S_i - Sbar`` over each window (zero for zero-weighted paths), per parameter unit.
-
-    ``sums``: ``(N, len(times), 2 len(settings) + 1)`` running sums of :class:`Score` after the steps ``times``;
-    ``k_t``: the step of ``t``; ``starts``: ``{name: step}`` where each window starts (0: the whole history).
-    """
-    D = jnp.reshape(jnp.asarray(scene.noise.D, scene.float_dtype), ())  # one source: a number, or a (1, 1) matrix
-    total = sums[:, times.index(k_t)]
-    q = jnp.sum(w * total[:, -1]) / jnp.sum(w) / max(k_t, 1)
-    frac = 1.0 - q / (2.0 * D * scene.dt)
-    scores = {}
-    for j, (n, est) in enumerate(settings.items()):
-        a = total - (sums[:, times.index(starts[n])] if starts[n] > 0 else 0.0)
-        c = frac if est.ito_correction else 0.0
-        s_i = (a[:, 2 * j] - c * D * a[:, 2 * j + 1]) / (2.0 * D)
-        s_i = jnp.where(w > 0, s_i, 0.0)
-        scores[n] = s_i - jnp.sum(w * s_i) / jnp.sum(w)
-    return scores
 
 
 def _sampled_kernel(scene, query: Query, x, v, w):

@@ -16,16 +16,17 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 
-from .._integrate import Sums
 from .._pytree import check_real
 from .._scene import Scene, get_parameter, with_parameters
 from ..methods._base import AbstractMethod, solve
 from ..methods._monte_carlo import MonteCarlo
 from ..methods._path_integration import PathIntegration
-from ..methods._paths import run_paths
-from ..results import _density
+from ..results._density import bandwidth as rule_bandwidth
+from ..results._density import kde_difference, kernel_matrix
 from ..results._samples import reflection
+from ..tracking import Sums
 from ._estimators import CentralDifference, LikelihoodRatio, Score, warn_if_noisy
+from ._scores import centred_scores, finite_weights, moments, score_windows
 
 
 def several_dof_sensitivity(
@@ -55,14 +56,14 @@ def several_dof_sensitivity(
     paths = _scored_paths(scene, scored, var, t, method) if scored else None
     if bandwidth is None:
         y, w = (nominal.samples(var, t), nominal.weights) if nominal is not None else paths.nominal
-        bandwidth = float(_density.bandwidth(y, w, rule, dim=1))
+        bandwidth = float(rule_bandwidth(y, w, rule, dim=1))
     value, stderr = _likelihood_ratio(paths, grid, bandwidth, reflect) if scored else ({}, {})
     for name in central:
         est = estimators[name]
         nominal_value = scene.noise.D if name == "D" else get_parameter(scene.model, name)
         lo, hi = est.pair(name, float(nominal_value))
         runs = [solve(with_parameters(scene, {name: p}), method) for p in (lo, hi)]
-        d, se = _density.kde_difference(
+        d, se = kde_difference(
             runs[0].samples(var, t), runs[1].samples(var, t), nominal.weights, grid, bandwidth, reflect
         )
         value[name], stderr[name] = d / (hi - lo), se / (hi - lo)
@@ -84,36 +85,25 @@ class _ScoredPaths(NamedTuple):
 
 def _scored_paths(scene: Scene, settings: dict, var, t: float, method) -> _ScoredPaths:
     """The paths of ``method`` up to ``t``, tracking the score sums of ``settings`` (``{name: LikelihoodRatio}``)."""
-    from ._sensitivity import _centred_scores, _finite_weights, score_windows
-
     k_t, starts, times, run_scene = score_windows(scene, settings, t)
     rows, weights, chunk = method.inputs(scene)
-    states, sums = run_paths(
-        run_scene,
-        rows,
-        kind=method.name,
-        chunk_size=chunk,
-        devices=method.devices,
-        track=Sums(Score(tuple(settings), scene.dt)),
-    )
+    states, sums = method.paths(run_scene, rows, chunk, track=Sums(Score(tuple(settings), scene.dt)))
     at = states[:, times.index(k_t)]
     y = jax.vmap(var)(at) if callable(var) else at[:, scene.model.coordinates.index(var)]
-    w, (_, finite_y) = _finite_weights(weights, jnp.concatenate([at, sums[:, times.index(k_t)]], axis=1), y)
-    return _ScoredPaths((y, weights), finite_y, w, _centred_scores(scene, settings, sums, w, times, k_t, starts))
+    w, (_, finite_y) = finite_weights(weights, jnp.concatenate([at, sums[:, times.index(k_t)]], axis=1), y)
+    return _ScoredPaths((y, weights), finite_y, w, centred_scores(scene, settings, sums, w, times, k_t, starts))
 
 
 def _likelihood_ratio(paths: _ScoredPaths, grid, sigma: float, reflect):
     """``(value, stderr)`` dicts of ``sum_i w_i K(y - Y_i) (S_i - Sbar)`` for each parameter scored in ``paths``."""
-    from ._sensitivity import _moments
-
     grid_flat = jnp.atleast_1d(grid).astype(paths.y.dtype)
 
     def contribution(y, s):
-        return _density._kernel_matrix(grid_flat, y, sigma, reflect).T * s[:, None]
+        return kernel_matrix(grid_flat, y, sigma, reflect).T * s[:, None]
 
     value, stderr = {}, {}
     for name, score in paths.scores.items():
-        d, se = _moments(contribution, (paths.y, score), paths.w)
+        d, se = moments(contribution, (paths.y, score), paths.w)
         value[name], stderr[name] = d.reshape(grid.shape), se.reshape(grid.shape)
     return value, stderr
 

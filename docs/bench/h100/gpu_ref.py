@@ -126,7 +126,7 @@ def lr():
         print(var, "seconds", time.perf_counter() - t0, names, flush=True)
         for k in s:
             out[f"{k}_{var}"] = np.asarray(s.value[k])
-            out[f"{k}_{var}_se"] = np.asarray(s.stderr[k])
+            out[f"{k}_{var}_se"] = np.asarray(s.value_stderr[k])
     np.savez(f"{OUT}/lr.npz", xg=XG, vg=VG, h=H, **out)
 
 

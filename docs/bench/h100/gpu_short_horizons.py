@@ -71,14 +71,14 @@ for t in TIMES:
     arrays = {"p_mc": p_mc, "p_pi": p_pi}
     for n in NAMES:
         arrays |= {f"pi_{n}": np.asarray(pi[n]), f"picd_{n}": pi_cd[n], f"cd_{n}": np.asarray(cd[n])}
-        arrays |= {f"cdse_{n}": np.asarray(cd.stderr[n])}
+        arrays |= {f"cdse_{n}": np.asarray(cd.value_stderr[n])}
         if n in auto:
-            arrays |= {f"auto_{n}": np.asarray(auto[n]), f"autose_{n}": np.asarray(auto.stderr[n])}
+            arrays |= {f"auto_{n}": np.asarray(auto[n]), f"autose_{n}": np.asarray(auto.value_stderr[n])}
     np.savez(os.path.join(OUT, f"gpu8_t{t:g}_n{N}_dt{DT:g}.npz"), xs=XS, **arrays)
     for n in NAMES:
         p = np.asarray(pi[n])
         nr = np.linalg.norm(p)
-        c, cs = np.asarray(cd[n]), np.asarray(cd.stderr[n])
+        c, cs = np.asarray(cd[n]), np.asarray(cd.value_stderr[n])
         rel = lambda a, b: np.linalg.norm(a - b) / nr  # noqa: E731
         row = [
             f"{t:g}",
@@ -90,7 +90,7 @@ for t in TIMES:
             f"{rel(p, c):.3f}",
         ]
         if n in auto:
-            a, s_ = np.asarray(auto[n]), np.asarray(auto.stderr[n])
+            a, s_ = np.asarray(auto[n]), np.asarray(auto.value_stderr[n])
             row += [
                 type(auto.estimators[n]).__name__,
                 f"{np.linalg.norm(s_) / nr:.3f}",
