@@ -22,6 +22,11 @@ from ._engine.settings import ImpactRule as ImpactRule
 from ._engine.settings import Substeps as Substeps
 from ._envelopes import Jennings as Jennings
 from ._envelopes import ShinozukaSato as ShinozukaSato
+
+# evolve: fully non-stationary noise (evolutionary spectra)
+from ._evolutionary import AbstractEvolutionarySpectrum as AbstractEvolutionarySpectrum
+from ._evolutionary import EvolutionaryKanaiTajimi as EvolutionaryKanaiTajimi
+from ._evolutionary import EvolutionarySpectrum as EvolutionarySpectrum
 from ._excitation import AbstractExcitation as AbstractExcitation
 from ._excitation import AbstractNodes as AbstractNodes
 from ._excitation import ArrayNodes as ArrayNodes
@@ -117,3 +122,4 @@ _io.allow(
     DPIM, MonteCarlo, PathIntegration, SubsetSimulation,
     Pathwise, LikelihoodRatio, NoiseScaling, CentralDifference,
 )  # fmt: skip
+_io.allow(EvolutionaryKanaiTajimi, EvolutionarySpectrum)  # evolve

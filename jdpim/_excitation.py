@@ -24,12 +24,18 @@ exact with two elementary variables per source.
 The FFT form (Shinozuka & Deodatis 1991) evaluates the sum on a grid of spacing ``dt / 2`` (the RK4
 stage times) with ``dw * dt / 2 = 2 pi / M``; the period ``2 pi / dw`` covers the simulated span plus
 an offset on each side, because the representation is spiky near multiples of its period.
+
+An evolutionary spectrum (``WhiteNoise(envelope=spectrum)``, :mod:`jdpim._evolutionary`) scales every term by
+``A(w_k, t) = sqrt(|A(w_k, t)|^2)``, which no single FFT can do: the sum is then evaluated directly, as a product
+of the coefficients with the basis ``A(w_k, t_j) exp(i w_k t_j)`` built block of times by block of times
+(:func:`synthesize_evolutionary`), with the same coefficients and phases as the FFT.
 """
 
 from __future__ import annotations
 
 import abc
 import dataclasses
+import functools
 import math
 from collections.abc import Callable
 
@@ -38,6 +44,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._distributions import ANGLE
+from ._evolutionary import AbstractEvolutionarySpectrum
 from ._normals import normal_pair
 from ._pytree import check_int, check_real, pytree_dataclass, static_field
 
@@ -86,7 +93,8 @@ class AbstractExcitation(abc.ABC):
     - ``from_normals(scene, z)`` (optional): the forcing of standard normals at the nodes (subset simulation).
 
     The envelope of a modulated noise (``WhiteNoise(envelope=...)``) multiplies whatever forcing an excitation
-    gives (:func:`modulate`), so an excitation knows nothing of it.
+    gives (:func:`modulate`), so an excitation knows nothing of it. An evolutionary spectrum, which depends on the
+    frequency too, can only shape the harmonics of :class:`SpectralRepresentation`, which applies it itself.
     """
 
     @abc.abstractmethod
@@ -193,30 +201,32 @@ class SpectralRepresentation(AbstractExcitation):
         )
 
     def check(self, scene) -> None:
-        """The cutoff must lie below the Nyquist frequency of the stage grid."""
-        self.grid(scene.t_end, scene.dt)
+        """The cutoff must lie below the Nyquist frequency of the stage grid; an evolutionary spectrum must be finite
+        and non-negative on the grid."""
+        checked_grid(self, scene)
 
     def input_distributions(self, n_sources: int) -> tuple:
         """``(Theta1, Theta2)`` per source, each uniform on ``[-pi, pi)``."""
         return (ANGLE,) * (2 * n_sources)
 
     def from_inputs(self, scene, theta) -> ArrayNodes:
-        """The forcing of the random functions of ``theta`` ``(n, 2 m)``, by one FFT."""
-        grid = self.grid(scene.t_end, scene.dt)
+        """The forcing of the random functions of ``theta`` ``(n, 2 m)``, by one FFT (:func:`spectral_nodes`)."""
+        grid = checked_grid(self, scene)
         mixing = scene.noise.mixing().astype(scene.float_dtype)
         coeffs = jax.vmap(lambda t: random_function_coefficients(t, grid, mixing))(theta)
-        return ArrayNodes(synthesize(coeffs, grid).astype(scene.float_dtype))
+        return spectral_nodes(scene, coeffs, grid)
 
     def from_keys(self, scene, keys) -> ArrayNodes:
-        """The forcing of Gaussian coefficients drawn from each path's key ``(n, 2)``, by one FFT."""
-        grid = self.grid(scene.t_end, scene.dt)
+        """The forcing of Gaussian coefficients drawn from each path's key ``(n, 2)``, by one FFT
+        (:func:`spectral_nodes`)."""
+        grid = checked_grid(self, scene)
         dtype = scene.float_dtype
         mixing = scene.noise.mixing().astype(dtype)
 
         def coefficients(key):
             return gaussian_coefficients(jax.random.wrap_key_data(key), scene.n_sources, grid, mixing, dtype)
 
-        return ArrayNodes(synthesize(jax.vmap(coefficients)(keys), grid).astype(dtype))
+        return spectral_nodes(scene, jax.vmap(coefficients)(keys), grid)
 
     def values_per_path(self, scene) -> int:
         """The excitation over the FFT grid, for every source."""
@@ -245,7 +255,9 @@ class GaussianNodes(AbstractExcitation):
     """
 
     def check(self, scene) -> None:
-        """Any time grid suits it."""
+        """Any time grid suits it; an evolutionary spectrum does not (:func:`modulate`)."""
+        if scene.noise.spectrum is not None:
+            raise ValueError(_NEEDS_SPECTRAL)
 
     def input_distributions(self, n_sources: int) -> tuple:
         raise ValueError(
@@ -366,8 +378,26 @@ class Clocked:
         return self.model.may_be_stiff
 
 
+_NEEDS_SPECTRAL = (
+    "an evolutionary spectrum shapes the harmonics of the spectral representation: give the scene "
+    "excitation=jdpim.SpectralRepresentation() (Monte Carlo's default, GaussianNodes, draws white values at the nodes)"
+)
+
+
+@pytree_dataclass
+class ShapedNodes(ArrayNodes):
+    """:class:`ArrayNodes` synthesised under an evolutionary spectrum (:func:`synthesize_evolutionary`): the noise's
+    ``envelope`` is already in them."""
+
+
 def modulate(nodes: AbstractNodes, envelope: Callable | None, dt: float) -> AbstractNodes:
-    """``nodes`` under the noise's ``envelope`` (``None``: unmodulated, ``nodes`` itself)."""
+    """``nodes`` under the noise's ``envelope`` (``None``: unmodulated, ``nodes`` itself). An evolutionary spectrum
+    is in the nodes the spectral representation synthesised with it (:class:`ShapedNodes`), and no other nodes can
+    carry it (``ValueError``)."""
+    if isinstance(envelope, AbstractEvolutionarySpectrum):
+        if isinstance(nodes, ShapedNodes):
+            return nodes
+        raise ValueError(_NEEDS_SPECTRAL)
     return nodes if envelope is None else Modulated(nodes, envelope, dt)
 
 
@@ -509,6 +539,81 @@ def synthesize(coefficients: jnp.ndarray, grid: SpectralGrid) -> jnp.ndarray:
     spec = jnp.pad(spec, ((0, grid.n_fft // 2 + 1 - K1), (0, 0), (0, 0)))
     x = jnp.fft.irfft(spec, n=grid.n_fft, axis=0) * (grid.n_fft / 2)
     return jax.lax.slice_in_dim(x, grid.start, grid.start + grid.n_half, axis=0)
+
+
+def checked_grid(settings: SpectralRepresentation, scene) -> SpectralGrid:
+    """``settings``' grid for ``scene``, its noise's evolutionary spectrum (if any) checked finite and non-negative on
+    the grid's frequencies and half-step times (once per grid: the check is cached)."""
+    grid = settings.grid(scene.t_end, scene.dt)
+    spectrum = scene.noise.spectrum
+    if spectrum is not None:
+        spectrum.check(grid.dw * np.arange(grid.n_terms + 1), 0.5 * scene.dt * np.arange(grid.n_half))
+    return grid
+
+
+def spectral_nodes(scene, coefficients: jnp.ndarray, grid: SpectralGrid) -> ArrayNodes:
+    """The forcing of a batch of paths with spectral ``coefficients`` ``(n, m, K + 1)``: one FFT (:func:`synthesize`),
+    or under the noise's evolutionary spectrum :func:`synthesize_evolutionary` (:class:`ShapedNodes`)."""
+    dtype = scene.float_dtype
+    spectrum = scene.noise.spectrum
+    if spectrum is None:
+        return ArrayNodes(synthesize(coefficients, grid).astype(dtype))
+    return ShapedNodes(synthesize_evolutionary(coefficients, grid, spectrum, 0.5 * scene.dt, dtype))
+
+
+BASIS_VALUES = 2**20  # most values of one block of the evolutionary basis (times by harmonics)
+
+
+@functools.lru_cache(maxsize=16)
+def _phasors(grid: SpectralGrid, block: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(outer, inner)``: ``exp(i w_k t)`` at the first FFT sample of every block of ``block`` half-steps,
+    ``(n_blocks, K + 1)``, and over the offsets within a block, ``(block, K + 1)``; their products are the FFT's
+    phases ``2 pi k j / n_fft`` (exact integer arithmetic modulo ``n_fft``)."""
+    k = np.arange(grid.n_terms + 1, dtype=np.int64)
+    starts = grid.start + block * np.arange(-(-grid.n_half // block), dtype=np.int64)
+    outer = np.exp(2j * np.pi * (np.outer(starts, k) % grid.n_fft) / grid.n_fft)
+    inner = np.exp(2j * np.pi * (np.outer(np.arange(block, dtype=np.int64), k) % grid.n_fft) / grid.n_fft)
+    return outer, inner
+
+
+def synthesize_evolutionary(
+    coefficients: jnp.ndarray, grid: SpectralGrid, spectrum: AbstractEvolutionarySpectrum, half: float, dtype
+) -> jnp.ndarray:
+    r"""Excitation under an evolutionary spectrum on the half-step grid, ``Re sum_k A(w_k, t_j) c_k exp(i w_k t_j)``.
+
+    The same sum as :func:`synthesize` (same coefficients, same phases, the FFT's time origin) with every term
+    scaled by ``A(w_k, t_j) = sqrt(spectrum(w_k, t_j))`` at the simulated time ``t_j = j half``: a product with the
+    basis ``A exp(i w_k t)``, built in blocks of at most ``BASIS_VALUES`` values (``lax.map`` over the blocks), so
+    memory stays bounded whatever the record's length.
+
+    Args:
+        coefficients: ``(n_paths, m, K + 1)``, complex.
+        grid: the spectral grid.
+        spectrum: ``|A(omega, t)|^2``.
+        half: the half step ``dt / 2``, s.
+        dtype: the float dtype of the result.
+
+    Returns:
+        ``(n_half, n_paths, m)``, time-major.
+    """
+    n, m, K1 = coefficients.shape
+    block = max(1, min(grid.n_half, BASIS_VALUES // K1))
+    outer, inner = _phasors(grid, block)
+    cdtype = jnp.result_type(dtype, jnp.complex64)
+    omega = jnp.asarray(grid.dw * np.arange(K1), dtype)
+    real, imag = (
+        jnp.moveaxis(part, -1, 0).reshape(K1, n * m).astype(dtype) for part in (coefficients.real, coefficients.imag)
+    )
+    inner = jnp.asarray(inner, cdtype)
+
+    def one_block(args):
+        index, phase = args
+        t = (index * block + jnp.arange(block)).astype(dtype) * half
+        basis = jnp.sqrt(spectrum.on_grid(omega, t).astype(dtype)) * (phase[None, :] * inner)
+        return basis.real @ real - basis.imag @ imag  # Re(basis c) = A (cos Re c - sin Im c)
+
+    blocks = jax.lax.map(one_block, (jnp.arange(outer.shape[0]), jnp.asarray(outer, cdtype)))
+    return blocks.reshape(-1, n, m)[: grid.n_half]
 
 
 def _next_fast_len(n: int) -> int:

@@ -1,4 +1,5 @@
-r"""Gaussian white noise ``E[xi_k(t) xi_l(t + s)] = 2 D_kl delta(s)``, optionally modulated in time by an envelope."""
+r"""Gaussian white noise ``E[xi_k(t) xi_l(t + s)] = 2 D_kl delta(s)``, optionally modulated in time by an envelope, or
+shaped in time and frequency by an evolutionary spectrum."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._envelopes import check_envelope
+from ._evolutionary import AbstractEvolutionarySpectrum
 from ._pytree import check_real, concrete, pytree_dataclass, static_field
 
 
@@ -26,7 +28,11 @@ class WhiteNoise:
         envelope: ``None`` (stationary), or a function ``e(t) -> scalar`` of the time in s, traceable by JAX and
             hashable (static: changing it recompiles), e.g. :class:`jdpim.ShinozukaSato`. It multiplies the
             forcing at the integrator's nodes, so every method that integrates paths (DPIM, Monte Carlo, subset
-            simulation) takes it; estimators that assume a constant ``D`` refuse it.
+            simulation) takes it; estimators that assume a constant ``D`` refuse it. Or an evolutionary spectrum
+            ``|A(omega, t)|^2`` (:class:`jdpim.EvolutionaryKanaiTajimi`, :class:`jdpim.EvolutionarySpectrum`): the
+            noise is then fully non-stationary, with the evolutionary spectrum ``S(omega, t) = (D / pi)
+            |A(omega, t)|^2``; it shapes the harmonics of the spectral representation, so the scene needs
+            ``excitation=jdpim.SpectralRepresentation()`` for Monte Carlo (DPIM's default).
 
     Examples:
         >>> import jdpim
@@ -40,7 +46,8 @@ class WhiteNoise:
     envelope: Callable | None = static_field(default=None)
 
     def __post_init__(self):
-        check_envelope(self.envelope)
+        if not isinstance(self.envelope, AbstractEvolutionarySpectrum):
+            check_envelope(self.envelope)
         if isinstance(self.D, (str, bytes)):
             raise TypeError(f"D must be a real number or a matrix of them, got {self.D!r}")
         if isinstance(self.D, (list, tuple)):  # one array leaf, not a leaf per entry
@@ -80,8 +87,19 @@ class WhiteNoise:
             return jnp.sqrt(D).reshape(1, 1)
         return jnp.linalg.cholesky(D)
 
+    @property
+    def spectrum(self) -> AbstractEvolutionarySpectrum | None:
+        """The evolutionary spectrum ``|A(omega, t)|^2`` that shapes the noise, or ``None`` (white, or modulated by an
+        envelope ``e(t)``)."""
+        return self.envelope if isinstance(self.envelope, AbstractEvolutionarySpectrum) else None
+
     def intensity(self, t):
         """``D e(t)^2``: the intensity at time ``t`` (s; ``D`` itself for a stationary noise)."""
+        if self.spectrum is not None:
+            raise ValueError(
+                f"the noise has no intensity D e(t)^2: its evolutionary spectrum {self.envelope!r} depends on the "
+                "frequency, S(omega, t) = D / pi |A(omega, t)|^2"
+            )
         D = jnp.asarray(self.D)
         return D if self.envelope is None else D * jnp.asarray(self.envelope(t)) ** 2
 

@@ -18,19 +18,25 @@ Notation: ``H = (x^2 + v^2) / 2`` (unit natural frequency), ``a = alpha / 2``, `
   ``P' = A P + P A^T + G Q(t) G^T``, ``Q(t) = 2 D e(t)^2`` (:func:`lyapunov_covariance`); stationary
   noise gives the power spectral density ``S(omega) = H Q H^* / (2 pi)``, ``H = (i omega - A)^{-1} G``
   (:func:`linear_psd`) and the autocorrelation ``R(tau) = e^{A tau} P`` (:func:`linear_autocorrelation`).
+* **Linear systems under an evolutionary spectrum** ``S(omega, t) = (D / pi) |A(omega, t)|^2`` (Priestley): the
+  response to each harmonic, ``h(t, omega) = int_0^t e^{A (t - s)} G L A(omega, s) e^{i omega s} ds``, obeys a
+  linear ODE, and ``P(t) = (2 / pi) int_0^inf Re(h h^*) d omega`` (:func:`evolutionary_covariance`).
 
 All functions are NumPy/SciPy in float64 (reference values, not traced).
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 from scipy import integrate, linalg, special
 
 from ._models import AbstractOscillator
+from ._pytree import check_number
 from .filters import as_mdof
 
 
@@ -204,9 +210,11 @@ def lyapunov_covariance(model, noise, times, P0=None) -> np.ndarray:
         0.5
     """
     A, G, Q = _state_space(model, noise)
-    times = np.atleast_1d(np.asarray(times, float))
-    if times.ndim != 1 or np.any(times < 0) or np.any(np.diff(times) < 0) or not np.all(np.isfinite(times)):
-        raise ValueError(f"times must be finite, >= 0 and increasing, got {times.tolist()}")
+    if noise.spectrum is not None:
+        raise ValueError(
+            f"the noise has an evolutionary spectrum {noise.envelope!r}: its covariance is evolutionary_covariance's"
+        )
+    times = _times(times)
     k = A.shape[0]
     P0 = np.zeros((k, k)) if P0 is None else np.asarray(P0, float)
     if P0.shape != (k, k):
@@ -228,6 +236,130 @@ def lyapunov_covariance(model, noise, times, P0=None) -> np.ndarray:
         raise RuntimeError(f"the Lyapunov equation could not be integrated: {sol.message}")
     P = sol.y.T.reshape(len(times), k, k)
     return 0.5 * (P + np.swapaxes(P, 1, 2))
+
+
+def _times(times) -> np.ndarray:
+    """``times`` as a 1-D float array, checked finite, ``>= 0`` and increasing."""
+    times = np.atleast_1d(np.asarray(times, float))
+    if times.ndim != 1 or np.any(times < 0) or np.any(np.diff(times) < 0) or not np.all(np.isfinite(times)):
+        raise ValueError(f"times must be finite, >= 0 and increasing, got {times.tolist()}")
+    return times
+
+
+def evolutionary_covariance(model, noise, times, *, dw: float, cutoff: float, step: float = 0.01) -> np.ndarray:
+    r"""The covariance of the state ``(q, q')`` of a linear model from rest under an evolutionary spectrum.
+
+    The noise ``xi(t) = L int A(omega, t) e^{i omega t} dZ(omega)`` (``L L^T = D``, ``E|dZ|^2 = d omega / pi`` per
+    source; ``|A|^2`` the noise's evolutionary spectrum, ``e(t)^2`` for an envelope, 1 for white noise) drives
+    ``y' = M y + G xi`` (``M`` the state matrix). The response to the harmonic ``omega`` is
+    ``h(t, omega) e^{i omega t}`` with
+
+    .. math::
+        \dot h = (M - i\omega)\, h + G L A(\omega, t), \qquad h(0) = 0,
+        \qquad P(t) = rac{2}{\pi} \int_0^\infty \mathrm{Re}ig(h h^*ig)\, d\omega,
+
+    (``A`` real and even in ``omega``). The ODE is solved exactly for ``A`` linear in time between the nodes of a
+    grid of spacing at most ``step`` (an exponential integrator: ``exp((M - i omega) step)`` and its two
+    ``phi`` functions from one matrix exponential per frequency), so the only error in time is that of the linear
+    interpolation of ``A``, ``O(step^2 d^2A/dt^2)``. The frequency integral is the spectral representation's sum:
+    ``omega_k = k dw``, ``k = 0..round(cutoff / dw)``, weight ``dw`` (half at ``k = 0``). With the ``dw`` and
+    ``cutoff`` of a scene's :meth:`jdpim.SpectralRepresentation.grid` this is the exact covariance of the forcing
+    the scene simulates (over the representation's period, longer than the record, the sum is exact); as ``dw ->
+    0`` and ``cutoff -> inf`` it tends to Priestley's integral. For an envelope or white noise it tends to
+    :func:`lyapunov_covariance`, less the variance beyond the cutoff.
+
+    Args:
+        model: a linear model (as :func:`lyapunov_covariance`).
+        noise: a :class:`jdpim.WhiteNoise`, with an evolutionary spectrum, an envelope or neither.
+        times: the times in s, increasing, >= 0.
+        dw: the frequency step, rad/s, > 0.
+        cutoff: the largest frequency, rad/s, >= dw.
+        step: the largest time step of the exponential integrator, s, > 0.
+
+    Returns:
+        ``(len(times), 2 n, 2 n)``, ordered as the model's ``coordinates``.
+
+    Examples:
+        >>> import jdpim
+        >>> model = jdpim.VibroImpactOscillator(alpha=0.5, gamma=None, barrier=None)
+        >>> P = jdpim.exact.evolutionary_covariance(model, jdpim.WhiteNoise(D=0.1), [40.0], dw=0.1, cutoff=20.0)
+        >>> round(float(P[0, 0, 0]), 4)  # D / alpha
+        0.2
+    """
+    A, G, Q = _state_space(model, noise)
+    times = _times(times)
+    dw = check_number("dw", dw, low=0.0, low_open=True)
+    cutoff = check_number("cutoff", cutoff, low=dw)
+    step = check_number("step", step, low=0.0, low_open=True)
+    omega = dw * np.arange(int(round(cutoff / dw)) + 1)
+    weight = np.full(omega.size, dw)
+    weight[0] /= 2.0
+    k = A.shape[0]
+    GL = G @ np.linalg.cholesky(Q / 2.0)  # (2 n, m)
+    spectrum = noise.spectrum
+    with jax.enable_x64(True):  # |A|^2 in float64
+        if spectrum is not None:
+            square = jax.jit(lambda t: spectrum.on_grid(jnp.asarray(omega), t))
+        elif noise.envelope is not None:
+            square = jax.jit(
+                lambda t: jnp.broadcast_to(jax.vmap(noise.envelope)(t)[:, None] ** 2, (t.size, omega.size))
+            )
+        else:
+            square = None
+        h = np.zeros((omega.size, k, GL.shape[1]), complex)
+        out, t0 = [], 0.0
+        for t1 in times:
+            n_steps = int(np.ceil((t1 - t0) / step - 1e-9))
+            if n_steps:
+                nodes = np.linspace(t0, t1, n_steps + 1)
+                if spectrum is not None:
+                    spectrum.check_times(nodes)  # its parameters in range, with their names
+                amplitude = np.ones((nodes.size, omega.size)) if square is None else np.asarray(square(nodes))
+                if not np.all(np.isfinite(amplitude)) or np.any(amplitude < 0):
+                    raise ValueError(f"the noise's |A(omega, t)|^2 must be finite and >= 0 on [{t0:g}, {t1:g}] s")
+                h = _propagate(A, GL, omega, nodes, np.sqrt(amplitude), h)
+            P = 2.0 / np.pi * np.einsum("w,wim,wjm->ij", weight, h, h.conj()).real
+            out.append(0.5 * (P + P.T))
+            t0 = t1
+    return np.stack(out)
+
+
+def _propagate(A, GL, omega, nodes, amplitude, h):
+    r"""``h`` ``(W, 2 n, m)`` advanced over ``nodes`` (equal steps ``tau``) by ``h' = (A - i omega) h + GL a(omega,
+    t)``, ``a`` ``(len(nodes), W)`` linear between the nodes, exactly: one step is ``h <- E h + F1 b0 + F2 (b1 - b0)``
+    with ``E = e^Z``, ``F1 = tau phi1(Z)``, ``F2 = tau phi2(Z)``, ``Z = (A - i omega) tau``, ``phi1(z) = (e^z - 1) /
+    z``, ``phi2(z) = (e^z - 1 - z) / z^2``. Where ``A`` is diagonalisable they act on its modes, and many steps are
+    summed at once (``E^p = e^{p Z}``); else step by step with one matrix exponential per frequency (Van Loan's
+    block ``[[Z, tau I, 0], [0, 0, I], [0, 0, 0]]``)."""
+    k, tau = A.shape[0], nodes[1] - nodes[0]
+    lam, V = np.linalg.eig(A)
+    if np.linalg.cond(V) < 1e8:
+        z = (lam[None, :] - 1j * omega[:, None]) * tau  # (W, k)
+        small = np.abs(z) < 0.1  # Taylor series: no cancellation
+        safe = np.where(small, 1.0, z)
+        phi1 = np.where(small, sum(z**j / math.factorial(j + 1) for j in range(10)), np.expm1(safe) / safe)
+        phi2 = np.where(small, sum(z**j / math.factorial(j + 2) for j in range(10)), (np.expm1(safe) - safe) / safe**2)
+        inverse = np.linalg.inv(V)
+        g = inverse @ GL  # (k, m): the forcing on the modes
+        w = np.einsum("ij,wjm->wim", inverse, h)
+        chunk = max(1, 2**22 // z.size)
+        for j0 in range(0, nodes.size - 1, chunk):
+            a = amplitude[j0 : j0 + chunk + 1]  # (p + 1, W)
+            p = a.shape[0] - 1
+            c = tau * (phi1[None] * a[:-1, :, None] + phi2[None] * (a[1:] - a[:-1])[:, :, None])  # (p, W, k)
+            decay = np.exp(z[None] * np.arange(p - 1, -1, -1)[:, None, None])  # E^(p - 1 - j)
+            w = np.exp(p * z)[:, :, None] * w + np.sum(decay * c, axis=0)[:, :, None] * g[None]
+        return np.einsum("ij,wjm->wim", V, w)
+    block = np.zeros((omega.size, 3 * k, 3 * k), complex)
+    block[:, :k, :k] = (A[None] - 1j * omega[:, None, None] * np.eye(k)) * tau
+    block[:, :k, k : 2 * k] = tau * np.eye(k)
+    block[:, k : 2 * k, 2 * k :] = np.eye(k)
+    expm = linalg.expm(block)
+    E, F1, F2 = expm[:, :k, :k], expm[:, :k, k : 2 * k], expm[:, :k, 2 * k :]
+    for j in range(nodes.size - 1):
+        b0, b1 = amplitude[j][:, None, None] * GL, amplitude[j + 1][:, None, None] * GL
+        h = E @ h + F1 @ b0 + F2 @ (b1 - b0)
+    return h
 
 
 def linear_psd(model, noise, omega) -> np.ndarray:

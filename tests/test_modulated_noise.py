@@ -76,8 +76,8 @@ def test_constant_intensity_estimators_refuse_the_envelope(scene):
         jdpim.LikelihoodRatio().check(barrier, "alpha")
     with pytest.raises(ValueError, match="NoiseScaling does not apply: the noise is modulated"):
         jdpim.NoiseScaling().check(barrier, "D")
-    with pytest.raises(ValueError, match=r"^path integration .* assumes a constant noise intensity D"):
-        jdpim.solve(barrier, jdpim.PathIntegration())
+    with pytest.raises(ValueError, match=r"^PathIntegration\(stationary=True\) .* assumes a constant noise intensity"):
+        jdpim.solve(barrier, jdpim.PathIntegration(stationary=True))
 
 
 def test_envelope_settings():

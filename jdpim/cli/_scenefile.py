@@ -52,7 +52,9 @@ them (``[["x1", "x2"]]``; default: none).
 ``adjacent_buildings`` one value or an array of two). Models of several degrees of freedom take filters,
 ``[[model.filters]]`` with ``kind`` one of ``"kanai_tajimi"``, ``"clough_penzien"``, ``"first_order"``,
 ``"harmonic"`` and the function's arguments, appended in order. ``[noise] envelope`` modulates the noise
-(``{ kind = "shinozuka_sato", b1 = 0.1, b2 = 0.5 }`` or ``{ kind = "jennings", t1 = 2.0, t2 = 6.0, c = 0.5 }``),
+(``{ kind = "shinozuka_sato", b1 = 0.1, b2 = 0.5 }`` or ``{ kind = "jennings", t1 = 2.0, t2 = 6.0, c = 0.5 }``), or
+shapes it by an evolutionary spectrum (``{ kind = "evolutionary_kanai_tajimi", omega_g = [[0, 20], [12, 3]],
+zeta_g = 0.4, envelope = { kind = "shinozuka_sato" } }``, with ``[method] forcing = "spectral"``),
 and a ``[fragility]`` table (``quantity``, ``level``, ``intensities``, ``reference``, ``confidence``) adds
 ``jdpim.fragility`` by the file's Monte Carlo method. ``[output] derived`` names linear combinations of coordinates
 (``drift = {x2 = 1.0, x1 = -1.0}``) whose marginals are stored and which ``[reliability] quantity`` may name.
@@ -90,7 +92,9 @@ FILTERS = (
     "first_order",
     "harmonic",
 )  # [[model.filters]] kind -> jdpim.kanai_tajimi, ...
-ENVELOPES = {"shinozuka_sato": "ShinozukaSato", "jennings": "Jennings"}  # [noise] envelope kind -> jdpim class
+# [noise] envelope kind -> jdpim class; the evolutionary spectrum takes an envelope of the others
+EVOLUTIONARY = "evolutionary_kanai_tajimi"
+ENVELOPES = {"shinozuka_sato": "ShinozukaSato", "jennings": "Jennings", EVOLUTIONARY: "EvolutionaryKanaiTajimi"}
 METHODS = ("dpim", "monte_carlo")
 FORCINGS = ("nodes", "spectral")  # Monte Carlo's forcing: Gaussian values at the RK4 nodes, or DPIM's spectral one
 DENSITIES = ("x", "v", "joint")  # [output] densities of one degree of freedom
@@ -241,7 +245,12 @@ _SCHEMA = {
     "reliability": {"quantity", "levels"},
     "fragility": {"quantity", "level", "intensities", "reference", "confidence"},
 }
-_ENVELOPE_KEYS = {"shinozuka_sato": {"kind", "b1", "b2"}, "jennings": {"kind", "t1", "t2", "c"}}
+_ENVELOPE_KEYS = {
+    "shinozuka_sato": {"kind", "b1", "b2"},
+    "jennings": {"kind", "t1", "t2", "c"},
+    EVOLUTIONARY: {"kind", "omega_g", "zeta_g", "omega_f", "zeta_f", "envelope"},
+}
+_LAWS = (("omega_g", 15.6), ("zeta_g", 0.6), ("omega_f", NONE), ("zeta_f", 0.6))  # EVOLUTIONARY's, with defaults
 _REQUIRED = ("model", "noise", "time", "method")
 
 
@@ -507,25 +516,58 @@ def _pair(m: _Reader, key: str, default) -> tuple:
 
 
 def _envelope(noise: _Reader):
-    """``[noise] envelope`` (``{ kind = "shinozuka_sato", b1 = 0.1, b2 = 0.5 }`` or ``{ kind = "jennings", t1, t2,
-    c }``) as ``jdpim.ShinozukaSato`` or ``jdpim.Jennings``, and its table with the defaults filled in; ``None``
-    (stationary noise) where the key is absent."""
-    import jdpim
-
+    """``[noise] envelope`` (``{ kind = "shinozuka_sato", b1 = 0.1, b2 = 0.5 }``, ``{ kind = "jennings", t1, t2,
+    c }`` or ``{ kind = "evolutionary_kanai_tajimi", omega_g, zeta_g, omega_f, zeta_f, envelope }``) as the jdpim
+    object, and its table with the defaults filled in; ``None`` (stationary noise) where the key is absent."""
     table = noise.table.get("envelope")
     if table is None:
         return None, None
-    e = _Reader(noise.path, "noise", table, None, prefix="envelope.")
+    return _envelope_of(noise, table, "envelope.", tuple(ENVELOPES))
+
+
+def _envelope_of(noise: _Reader, table, prefix: str, kinds: tuple):
+    """The envelope (or evolutionary spectrum) of one of ``kinds`` that ``table`` (at ``prefix`` in ``[noise]``)
+    describes, and its table with the defaults filled in."""
+    import jdpim
+
+    e = _Reader(noise.path, "noise", table if isinstance(table, dict) else {}, None, prefix=prefix)
+    if not isinstance(table, dict):
+        e.fail(None, f"{prefix[:-1]} must be a table {{ kind = one of {list(kinds)}, ... }}, got {table!r}")
     kind = table.get("kind")
-    if kind not in ENVELOPES:
-        e.fail("kind", f"must be one of {list(ENVELOPES)}, got {kind!r}")
+    if kind not in kinds:
+        e.fail("kind", f"must be one of {list(kinds)}, got {kind!r}")
     e.only(_ENVELOPE_KEYS[kind])
     cls = getattr(jdpim, ENVELOPES[kind])
-    args = {f.name: e.number(f.name, f.default) for f in dataclasses.fields(cls)}
+    if kind == EVOLUTIONARY:
+        echo = {name: _law(e, name, table.get(name, default)) for name, default in _LAWS}
+        args = {name: None if value == NONE else _tuples(value) for name, value in echo.items()}
+        if "envelope" in table:
+            inner = tuple(k for k in ENVELOPES if k != EVOLUTIONARY)
+            args["envelope"], echo["envelope"] = _envelope_of(noise, table["envelope"], prefix + "envelope.", inner)
+    else:
+        args = {f.name: e.number(f.name, f.default) for f in dataclasses.fields(cls)}
+        echo = dict(args)
     try:
-        return cls(**args), {"kind": kind, **args}
+        return cls(**args), {"kind": kind, **echo}
     except (ValueError, TypeError) as err:
         raise _library_error(noise.path, err, "noise", e.prefix) from None
+
+
+def _law(e: _Reader, key: str, value):
+    """A parameter of the evolutionary Kanai-Tajimi spectrum: a number, ``"none"`` (``omega_f`` only), or a table
+    ``[[t0, t1, ...], [p0, p1, ...]]`` interpolated linearly in time."""
+    if value == NONE and key == "omega_f":
+        return NONE
+    if isinstance(value, list):
+        if len(value) != 2 or not all(isinstance(row, list) for row in value):
+            e.fail(key, f"must be a number or a table [[t0, t1, ...], [p0, p1, ...]], got {value!r}")
+        return [[e.real(f"{key}[{i}][{j}]", v) for j, v in enumerate(row)] for i, row in enumerate(value)]
+    return e.real(key, value)
+
+
+def _tuples(value):
+    """A :func:`_law` value as the library takes it: lists become tuples."""
+    return tuple(tuple(row) for row in value) if isinstance(value, list) else value
 
 
 def _filters(m: _Reader, model):
@@ -834,6 +876,15 @@ def load(path) -> SceneFile:
     x0, v0 = _initial(tables["initial"], model, mdof)
     methods, forcing, method_table = _methods(tables["method"])
     outputs, output_table = _outputs(tables["output"], model, mdof)
+    if (
+        isinstance(envelope, jdpim.AbstractEvolutionarySpectrum)
+        and forcing == "nodes"
+        and "monte_carlo" in method_table["name"]
+    ):
+        tables["method"].fail(
+            "forcing",
+            'must be "spectral" under an evolutionary [noise] envelope (the Gaussian nodes carry no spectrum)',
+        )
     try:
         noise = jdpim.WhiteNoise(D=D, envelope=envelope)
         excitation = excitation_of(forcing)

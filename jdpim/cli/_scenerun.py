@@ -61,7 +61,7 @@ FRAGILITY_COLUMNS = (
 )
 FRAGILITY_FIELDS = (
     "intensities", "probability", "probability_stderr", "lower", "upper",
-    "median", "median_stderr", "beta", "beta_stderr", "covariance",
+    "median", "median_stderr", "beta", "beta_stderr", "covariance", "fit_p_value", "n_evaluations",
 )  # fmt: skip
 
 
@@ -106,7 +106,8 @@ def fragility(sf: SceneFile, *, progress: bool = True, log=print) -> tuple[dict,
         f"P(max over [0, {sf.scene.save_at[-1]:g}] of {fr.quantity} > {fr.level:g}) by Monte Carlo ({m.n_paths} paths "
         f"per intensity, {fr.confidence:g} intervals)\n\n{report.markdown(rows, FRAGILITY_COLUMNS)}\n\n"
         f"lognormal fit: median {float(curve.median):.4g} +- {float(curve.median_stderr):.2g}, "
-        f"beta {float(curve.beta):.4g} +- {float(curve.beta_stderr):.2g}"
+        f"beta {float(curve.beta):.4g} +- {float(curve.beta_stderr):.2g} (goodness of fit: p = "
+        f"{float(curve.fit_p_value):.2g})"
     )
     return arrays, table, round(wall_s, 3)
 

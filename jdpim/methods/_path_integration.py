@@ -3,7 +3,8 @@ r"""Path integration: the transition density of a one-degree-of-freedom scene on
 ``jdpim.path_integration(scene)`` evolves the joint density ``p(x, v, t)`` of the scene's oscillator with
 the one-step operator of ``jdpim.methods._pi_operator`` (Strang splitting: half a Gaussian diffusion step in ``v``,
 the deterministic flow by semi-Lagrangian back-tracing with the impact law, another half diffusion step)
-and renormalises after every step, reporting the defect. ``stationary=True`` finds the fixed point of the
+and renormalises after every step, reporting the defect (a noise modulated by ``e(t)`` sets the kernels of
+every step, ``intensity_weights``). ``stationary=True`` finds the fixed point of the
 step by a Newton-Krylov solve (BiCGStab, GMRES where it stagnates; checked), differentiated implicitly
 (``jax.lax.custom_root``: one checked linear solve per tangent or cotangent, no back-propagation through
 the iterations).
@@ -27,7 +28,7 @@ from .._pytree import check_int, check_real, concrete
 from .._scene import Scene
 from ..results._grid import GridResult
 from ._base import AbstractMethod, solve
-from ._pi_operator import StepOperator, drift_and_diffusion, make_grid, step_operator
+from ._pi_operator import StepOperator, drift_and_diffusion, make_grid, state_dependent, step_operator
 
 ENERGY_SPAN = 20.0  # default extents: the energy where the estimated stationary density falls by e^-20
 
@@ -54,7 +55,9 @@ class PathIntegration(AbstractMethod):
 
     Solves the Fokker-Planck equation of a one-degree-of-freedom scene ``x'' + g(x) + f(x, x') = h(x, x') . xi(t)``
     on ``x >= barrier`` with the impact law ``x'_+ = -r x'_-`` (white noise ``E[xi xi^T] = 2 D delta``,
-    Stratonovich gains) by a mass-conservative splitting step on a grid (see ``docs/path_integration.md``),
+    Stratonovich gains; modulated by the noise's envelope ``e(t)``, if any, for state-independent gains: each
+    half-step kernel then takes the mean of ``e^2`` over its half step) by a mass-conservative splitting step
+    on a grid (see ``docs/path_integration.md``),
     with renormalisation after each step (the defect is reported as ``GridResult.mass_defect``). The scene
     gives the physics: model, noise, start ``x0``/``v0`` (a point mass, see ``t0``), ``save_at`` (multiples of
     ``tau`` after the start) and ``dtype``; its ``dt``, excitation and impact settings are not used, and random
@@ -97,7 +100,7 @@ class PathIntegration(AbstractMethod):
             ``GridResult.pdf_error`` and ``l1_error`` estimate the discretisation error (about a tenth of
             the cost more; the coarse solve is not differentiated).
         stationary: solve for the stationary density instead (``t`` may then be left out everywhere, and
-            ``GridResult.times`` is ``(inf,)``).
+            ``GridResult.times`` is ``(inf,)``); refused for a modulated noise (it has none).
         initial: a density ``initial(x, v)`` at ``t = 0`` (vectorised over node arrays of shape
             ``(n_x, n_v)``, JAX-traceable) instead of the point-mass start; renormalised on the grid.
 
@@ -219,7 +222,7 @@ def default_extents(scene: Scene, settings: PathIntegration) -> tuple[float, flo
             "static), or use jdpim.sensitivity, which fixes them at the nominal values"
         )
     a_e, cubic, q, stiff = averaged_energy_law(scene)
-    c = ENERGY_SPAN * q  # (a_e H + cubic H^2) / q = ENERGY_SPAN
+    c = ENERGY_SPAN * q * peak_weight(scene, settings.tau)  # (a_e H + cubic H^2) / q = ENERGY_SPAN
     H = c / a_e if cubic == 0 else (-a_e + math.sqrt(a_e * a_e + 4 * cubic * c)) / (2 * cubic)
     v_max = math.sqrt(2 * H)
     x_max = v_max / math.sqrt(stiff)
@@ -249,7 +252,23 @@ def validate(scene: Scene, settings: PathIntegration, initial, stationary: bool)
             f"path integration does not take random parameters (scene.random={dict(scene.random)!r}); "
             "use jdpim.dpim or jdpim.monte_carlo"
         )
-    scene.noise.require_stationary("path integration (its transition density)", "use jdpim.DPIM or jdpim.MonteCarlo")
+    if stationary:
+        scene.noise.require_stationary(
+            "PathIntegration(stationary=True) (a stationary density)",
+            "a modulated noise has none; use stationary=False",
+        )
+    if scene.noise.spectrum is not None:
+        raise ValueError(
+            f"path integration takes white noise, modulated or not, not an evolutionary spectrum "
+            f"({scene.noise.envelope!r}): its steps assume one intensity for every frequency; use jdpim.DPIM or "
+            "jdpim.MonteCarlo(excitation=jdpim.SpectralRepresentation())"
+        )
+    if scene.noise.envelope is not None and state_dependent(scene.model):
+        raise ValueError(
+            "path integration of a modulated noise needs state-independent gains (h=None): with gains h(x, v) every "
+            "node's kernel and the Wong-Zakai drift of the flow would change at every step; use jdpim.DPIM or "
+            "jdpim.MonteCarlo"
+        )
     if scene.model.time_dependent:
         raise ValueError("path integration needs a model whose forces do not depend on the time; use jdpim.DPIM")
     if scene.model.has_barrier:
@@ -270,8 +289,10 @@ def validate(scene: Scene, settings: PathIntegration, initial, stationary: bool)
 
 
 def _point_start(scene: Scene, grid, dtype, t0: float, n: int = 200):
-    """Density at ``t0`` of the system linearised at the start point, folded at the barrier with the impact law."""
+    """Density at ``t0`` of the system linearised at the start point, folded at the barrier with the impact law
+    (its covariance driven by ``2 q e(t)^2`` for a noise modulated by ``e(t)``)."""
     model = scene.model
+    envelope = scene.noise.envelope
     a, q = drift_and_diffusion(model, scene.noise.D)
     x0, v0 = (jnp.asarray(z, dtype) for z in scene.initial_state())
     a0 = a(x0, v0)
@@ -279,20 +300,23 @@ def _point_start(scene: Scene, grid, dtype, t0: float, n: int = 200):
     A = jnp.stack([jnp.stack([jnp.zeros_like(ax), jnp.ones_like(ax)]), jnp.stack([ax, av])])
     Q = jnp.zeros((2, 2), dtype).at[1, 1].set(2 * q(x0, v0))
 
-    def rhs(state):
+    def rhs(state, t):
         m, C = state
         dm = jnp.stack([m[1], a0 + ax * (m[0] - x0) + av * (m[1] - v0)])
-        return dm, A @ C + C @ A.T + Q
+        forcing = Q if envelope is None else Q * jnp.asarray(envelope(t), dtype) ** 2
+        return dm, A @ C + C @ A.T + forcing
 
-    def rk4(state, _):
+    def rk4(state, k):
         h = t0 / n
-        k1 = rhs(state)
-        k2 = rhs(jax.tree.map(lambda s, k: s + 0.5 * h * k, state, k1))
-        k3 = rhs(jax.tree.map(lambda s, k: s + 0.5 * h * k, state, k2))
-        k4 = rhs(jax.tree.map(lambda s, k: s + h * k, state, k3))
+        t = k * h
+        k1 = rhs(state, t)
+        k2 = rhs(jax.tree.map(lambda s, k: s + 0.5 * h * k, state, k1), t + 0.5 * h)
+        k3 = rhs(jax.tree.map(lambda s, k: s + 0.5 * h * k, state, k2), t + 0.5 * h)
+        k4 = rhs(jax.tree.map(lambda s, k: s + h * k, state, k3), t + h)
         return jax.tree.map(lambda s, p, q_, w, z: s + h / 6 * (p + 2 * q_ + 2 * w + z), state, k1, k2, k3, k4), None
 
-    (m, C), _ = jax.lax.scan(rk4, (jnp.stack([x0, v0]), jnp.zeros((2, 2), dtype)), None, length=n)
+    init = (jnp.stack([x0, v0]), jnp.zeros((2, 2), dtype))
+    (m, C), _ = jax.lax.scan(rk4, init, jnp.arange(n, dtype=dtype))
     det = C[0, 0] * C[1, 1] - C[0, 1] ** 2
     X, V = jnp.meshgrid(grid.x, grid.v, indexing="ij")
 
@@ -348,12 +372,48 @@ def start_density(scene: Scene, settings: PathIntegration, grid, weights, initia
     return p / jnp.sum(weights * p), start
 
 
-def saved_scan(body, carry, steps):
-    """The carries of ``lax.scan(body, carry)`` after each of ``steps`` (increasing counts of steps), a list."""
+def intensity_weights(noise, start: float, tau: float, n: int, dtype):
+    r"""``(n, 2)``: the mean of ``e(t)^2`` over the first and the second half of each of ``n`` steps from ``start``
+    (3-point Gauss-Legendre on each half: exact for ``e^2`` polynomial of degree 5 there); ``None`` for a
+    stationary noise.
+
+    Each half-step diffusion then adds exactly the velocity variance ``2 q int e^2 dt`` of its half step: the
+    diffusion operators ``q e(t)^2 d^2/dv^2`` at different times commute, so the diffusion sub-steps are exact
+    and the step keeps the second-order error of the Strang splitting (``O(tau^2)`` at a fixed time), also for
+    envelopes with kinks (Jennings') where a midpoint value would lose an order in the steps that hold the kink.
+    """
+    if noise.envelope is None:
+        return None
+    nodes, w = np.polynomial.legendre.leggauss(3)
+    offsets = tau / 2 * (np.arange(2)[:, None] + (nodes[None, :] + 1) / 2)  # (2, 3) within a step
+    t = start + tau * jnp.arange(n, dtype=dtype)[:, None, None] + jnp.asarray(offsets, dtype)[None]
+    e = jax.vmap(noise.envelope)(t.ravel()).reshape(t.shape)
+    return jnp.sum(jnp.asarray(e, dtype) ** 2 * jnp.asarray(w / 2, dtype)[None, None, :], axis=-1)
+
+
+def step_exponents(scene: Scene, settings: PathIntegration, ops: StepOperator, start: float, n: int):
+    """``(n, 2)``: the exponents of the half-step kernels of ``n`` steps from ``start`` (``StepOperator.exponents``
+    of ``intensity_weights``); ``None`` for a stationary noise."""
+    weights = intensity_weights(scene.noise, start, settings.tau, n, ops.kernel.dtype)
+    return None if weights is None else ops.exponents(weights)
+
+
+def peak_weight(scene: Scene, tau: float) -> float:
+    """The largest mean of ``e(t)^2`` over the half steps from 0 to the last saved time (1 for a stationary noise):
+    sizes the grid and checks its resolution at the noise's strongest."""
+    if scene.noise.envelope is None:
+        return 1.0
+    n = max(1, math.ceil(max(t for t in scene.save_at if math.isfinite(t)) / tau - 1e-9))
+    return float(np.max(np.asarray(intensity_weights(scene.noise, 0.0, tau, n, scene.float_dtype))))
+
+
+def saved_scan(body, carry, steps, xs=None):
+    """The carries of ``lax.scan(body, carry)`` after each of ``steps`` (increasing counts of steps), a list;
+    ``xs`` (leading axis: at least ``max(steps)``): the per-step inputs, ``None`` for none."""
     outs, done = [], 0
     for k in steps:
         if k > done:
-            carry, _ = jax.lax.scan(body, carry, None, length=k - done)
+            carry, _ = jax.lax.scan(body, carry, None if xs is None else xs[done:k], length=k - done)
             done = k
         outs.append(carry)
     return outs
@@ -367,15 +427,15 @@ def _transient(scene: Scene, settings: PathIntegration, extents, initial):
     zero = jnp.zeros((), dtype)
     carry = (p, zero, jnp.sum(edge * p))
 
-    def body(carry, _):
+    def body(carry, exponents):
         p, defect, leak = carry
-        p = ops.step(p)
+        p = ops.step(p, exponents)
         m = jnp.sum(weights * p)
         p = p / m
         return (p, defect + jnp.abs(1 - m), jnp.maximum(leak, jnp.sum(edge * p))), None
 
     steps = [int(round((t - start) / settings.tau)) for t in scene.save_at]
-    outs = saved_scan(body, carry, steps)
+    outs = saved_scan(body, carry, steps, step_exponents(scene, settings, ops, start, max(steps)))
     density, defect, leak = (jnp.stack(z) for z in zip(*outs, strict=True))
     nan = jnp.full(density.shape[:1], jnp.nan, dtype)
     none = jnp.zeros(density.shape[:1], dtype)
@@ -639,16 +699,23 @@ def check_resolution(scene: Scene, settings: PathIntegration, extents, point_sta
         return  # traced: nothing to check here
     _, q_fn = drift_and_diffusion(model, D)
     q = float(q_fn(jnp.asarray(float(b)), jnp.asarray(0.0)))
+    peak = math.sqrt(q * peak_weight(scene, settings.tau) * settings.tau)  # at the noise's strongest
     span_x = extents[0] if model.has_barrier else 2 * extents[0]
     dx, dv = span_x / (settings.n_x - 1), 2 * extents[1] / (settings.n_v - 1)
     problems = []
-    if math.sqrt(q * settings.tau) < 0.6 * dv:  # below that the sampled kernel loses its variance
+    if peak < 0.6 * dv:  # below that the sampled kernel loses its variance
         problems.append(
-            f"the half-step diffusion (sd sqrt(q tau) = {math.sqrt(q * settings.tau):.3g}) is below 0.6 times "
+            f"the half-step diffusion (sd sqrt(q tau) = {peak:.3g}) is below 0.6 times "
             f"the velocity spacing dv = {dv:.3g}: raise n_v or tau"
         )
     if point_start:
+        # a free particle's spread: 2 q int_0^t0 (t0 - s)^k e(s)^2 ds, k = 2 (x) and 0 (v)
         sx, sv = math.sqrt(2 * q * settings.t0**3 / 3), math.sqrt(2 * q * settings.t0)
+        if scene.noise.envelope is not None:  # by the midpoint rule
+            s = (np.arange(200) + 0.5) * settings.t0 / 200
+            e2 = np.asarray(jax.vmap(scene.noise.envelope)(jnp.asarray(s, scene.float_dtype)), float) ** 2
+            sx = math.sqrt(2 * q * settings.t0 * np.mean((settings.t0 - s) ** 2 * e2))
+            sv = math.sqrt(2 * q * settings.t0 * np.mean(e2))
         # measured (r = 1, alpha = 0.1, D = 0.05, t = 5, float64): L1 error 1e-5 for sx >= 0.9 dx, 6e-4 at 0.6 dx,
         # 5e-3 to 1e-2 below 0.45 dx
         if sx < dx or sv < 1.5 * dv:

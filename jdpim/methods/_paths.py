@@ -114,13 +114,24 @@ def diverged(scene: Scene, states):
     bound = divergence_bound(scene)
     if bound is None:
         return jnp.zeros(states.shape[:2], bool)
+    return _diverged(states, bound)
+
+
+@jax.jit
+def _diverged(states, bound):
     return jnp.cumsum(beyond(states, bound), axis=1) > 0
 
 
 def without_diverged(scene: Scene, states):
     """``states`` ``(N, S, 2 n)`` with those of paths that have :func:`diverged` set to NaN, so that they count as
     non-finite (``Result.n_nonfinite``)."""
-    return jnp.where(diverged(scene, states)[..., None], jnp.nan, states)
+    bound = divergence_bound(scene)
+    return states if bound is None else _nan_diverged(states, bound)
+
+
+@jax.jit
+def _nan_diverged(states, bound):
+    return jnp.where(_diverged(states, bound)[..., None], jnp.nan, states)
 
 
 def _largest_chunk(scene: Scene, kind: str) -> int:

@@ -25,6 +25,12 @@ into half a diffusion step in ``v``, the deterministic flow over ``tau``, and an
 
 The images and weights do not depend on time: they are computed once per solve (traced, hence
 differentiable in the model's parameters), and a step is a scatter-add plus two small matrix products.
+
+**Modulated noise** ``e(t) xi(t)`` (state-independent gains): the half-step kernels take the intensity
+``D e^2`` averaged over their half step, as exponents computed for all steps at once (``exponents``) and fed
+to the steps (``step(p, exponents)``), which rebuild their kernels from one sampled row (``kernel_of``: the
+kernel is a Toeplitz matrix, so ``2 n_v - 1`` exponentials per half step, against the ``n_x n_v^2``
+multiply-adds of applying it); the flow does not involve the noise and stays as built.
 """
 
 from __future__ import annotations
@@ -181,6 +187,9 @@ class StepOperator:
     kernel: Any  # (n_v, n_v) or (n_x, n_v, n_v) half-step diffusion kernel [target, source]
     fold: Any  # (2 targets, ghost column -k, node v_j) -> start x, start v, weights x (4,), weights v (4,); or None
     order: int
+    variance: Any = None  # () half-step variance q tau of state-independent gains (for exponents); else None
+    smoothing: Any = 0.0  # () the variance that deposition adds per half step (subtracted from the kernel's)
+    dv: Any = None  # () the velocity spacing
 
     def flow(self, p):
         """Deposit every node's mass at its image with the interpolation weights (mass-conservative)."""
@@ -201,13 +210,69 @@ class StepOperator:
             out = out[ghost:].at[(fi[..., None] + jx)[..., :, None], (fj[..., None] + jv)[..., None, :]].add(spill)
         return out / self.area
 
-    def diffuse(self, p):
-        if self.kernel.ndim == 2:
-            return p @ self.kernel.T
-        return jnp.einsum("ijk,ik->ij", self.kernel, p)
+    def diffuse(self, p, kernel=None):
+        kernel = self.kernel if kernel is None else kernel
+        if kernel.ndim == 2:
+            return p @ kernel.T
+        return jnp.einsum("ijk,ik->ij", kernel, p)
 
-    def step(self, p):
-        return self.diffuse(self.flow(self.diffuse(p)))
+    def exponents(self, weights):
+        """``z`` (shaped like ``weights``) of the half-step kernels at the intensities ``D * weights``
+        (state-independent gains; see ``node_exponent`` and ``kernel_of``)."""
+        return node_exponent((weights * self.variance - self.smoothing) / self.dv**2)
+
+    def kernel_of(self, z):
+        """The half-step kernel ``(n_v, n_v)`` of exponent ``z``: the kernel of a constant variance is Toeplitz,
+        ``K_jk = row[j - k]``, so one row ``exp(-z k^2)`` over every node-to-node distance is normalised (as
+        ``step_operator`` normalises) and gathered."""
+        n_v = self.kernel.shape[-1]
+        row = jnp.exp(-z * jnp.arange(-(n_v - 1), n_v, dtype=self.kernel.dtype) ** 2)
+        return (row / jnp.sum(row))[_toeplitz(n_v)]
+
+    def step(self, p, exponents=None):
+        """One step of ``p`` ``(n_x, n_v)``; ``exponents`` ``(2,)``: the ``z`` of the two half-step kernels for a
+        modulated noise (``exponents`` of the mean ``e(t)^2`` over each half; ``None``: the operator's kernel)."""
+        if exponents is None:
+            return self.diffuse(self.flow(self.diffuse(p)))
+        first, second = self.kernel_of(exponents[0]), self.kernel_of(exponents[1])
+        return self.diffuse(self.flow(self.diffuse(p, first)), second)
+
+
+GAUSSIAN_ABOVE = 4.0  # node variances (in dv^2) from which exp(-k^2 / (2 var)) has the variance var (to e^-79)
+ASYMPTOTE_BELOW = 1e-6  # node variances below which z = ln(2 / var) (the nearest neighbours alone; relative error var)
+
+
+def node_exponent(var):
+    r"""``z`` with which ``g_k = exp(-z k^2)``, normalised over the integers ``k``, has the variance ``var`` (in squared
+    spacings, any shape; ``var <= 0`` gives the identity's ``z``, a very large number).
+
+    From ``GAUSSIAN_ABOVE`` up, the sampled Gaussian ``z = 1 / (2 var)``. Below about one spacing a sampled
+    Gaussian's variance on the nodes falls short of its parameter (``2 exp(-1 / (2 var))`` as ``var -> 0``), so a
+    half step at a low intensity (a modulated noise's rise and decay) would inject too little: there ``z`` solves
+    ``sum k^2 g_k / sum g_k = var`` by Newton on the logarithm (5 iterations, converged to rounding from
+    ``ASYMPTOTE_BELOW`` to ``GAUSSIAN_ABOVE``), and ``z = ln(2 / var)`` below.
+    """
+    dtype = jnp.result_type(var)
+    v = jnp.clip(var, jnp.finfo(dtype).tiny, GAUSSIAN_ABOVE)
+    mid = jnp.clip(v, ASYMPTOTE_BELOW, GAUSSIAN_ABOVE)  # Newton's range (clipped: no NaN in the unused branch)
+    k2 = jnp.reshape(jnp.arange(-24, 25, dtype=dtype) ** 2, (1,) * jnp.ndim(var) + (-1,))
+
+    def moment(g, k):  # sum over the last axis of k2^k g
+        return jnp.sum(k2**k * g, axis=-1)
+
+    z = jnp.where(mid < 0.5, jnp.log(2 / mid), 1 / (2 * mid))
+    for _ in range(5):  # a fixed, small count: unrolled
+        g = jnp.exp(-k2 * z[..., None])
+        m0, m2, m4 = moment(g, 0), moment(g, 1), moment(g, 2)
+        z = z + (jnp.log(m2 / m0) - jnp.log(mid)) / (m4 / m2 - m2 / m0)
+    z = jnp.where(v < ASYMPTOTE_BELOW, jnp.log(2.0) - jnp.log(v), z)
+    return jnp.where(var >= GAUSSIAN_ABOVE, 1 / (2 * jnp.maximum(var, GAUSSIAN_ABOVE)), z)
+
+
+@functools.lru_cache(maxsize=32)
+def _toeplitz(n: int) -> np.ndarray:
+    """``(n, n)`` indices ``j - k + n - 1`` of a row over the distances ``-(n - 1) .. n - 1``."""
+    return np.subtract.outer(np.arange(n), np.arange(n)) + n - 1
 
 
 def step_operator(
@@ -233,13 +298,16 @@ def step_operator(
 
     # each half step diffuses with variance q tau, less half the variance that B-spline deposition adds
     smoothing = BSPLINE_VARIANCE * grid.dv**2 / 2 if order == 2 else 0.0
+    variance = None
     if state_dependent(model):
         qs = jax.vmap(jax.vmap(q))(*jnp.meshgrid(grid.x, grid.v, indexing="ij"))  # (n_x, n_v) at the source
         K = jax.vmap(lambda qi: kernel(qi[None, :] * tau - smoothing))(qs)
     else:
-        K = kernel((q(grid.x[0], jnp.zeros((), dtype)) * tau - smoothing) * jnp.ones((1, n_v), dtype))
+        variance = q(grid.x[0], jnp.zeros((), dtype)) * tau
+        K = kernel((variance - smoothing) * jnp.ones((1, n_v), dtype))
     fold = _fold(model, grid, ghost, n_v) if ghost else None
-    return StepOperator(ix, iv, wx, wv, grid.mass_weights(order, bool(ghost)), K, fold, order)
+    area = grid.mass_weights(order, bool(ghost))
+    return StepOperator(ix, iv, wx, wv, area, K, fold, order, variance, smoothing, grid.dv)
 
 
 def _fold(model, grid: Grid, ghost: int, n_v: int):

@@ -1,10 +1,10 @@
 r"""First passage by path integration: the transient density on its grid, absorbed where ``q > level``.
 
-Each step is the transient's step (``StepOperator.step``, renormalised to the mass it started with, as
-``solve`` renormalises), after which every node keeps only the part of its cell where ``q <= level``
-(``keep``, the fraction of ``SUBCELLS**2`` points of the cell). The surviving mass at a saved time is
-``1 - P_f(t)``. The start density (a Gaussian at ``t0`` for a point start) is absorbed too, so mass beyond
-the level at ``t0`` counts as having passed it.
+Each step is the transient's step (``StepOperator.step``, at the step's intensity for a modulated noise,
+renormalised to the mass it started with, as ``solve`` renormalises), after which every node keeps only the
+part of its cell where ``q <= level`` (``keep``, the fraction of ``SUBCELLS**2`` points of the cell). The
+surviving mass at a saved time is ``1 - P_f(t)``. The start density (a Gaussian at ``t0`` for a point start)
+is absorbed too, so mass beyond the level at ``t0`` counts as having passed it.
 """
 
 from __future__ import annotations
@@ -25,10 +25,12 @@ from ..methods._path_integration import (
     PathIntegrationWarning,
     check_resolution,
     coarser,
+    peak_weight,
     resolved,
     saved_scan,
     setup,
     start_density,
+    step_exponents,
     validate,
 )
 from ..methods._pi_operator import drift_and_diffusion, make_grid
@@ -156,7 +158,8 @@ def _check_levels(scene, settings: PathIntegration, query: FirstPassageQuery, gr
     else:  # diffusion over a step (5 standard deviations), plus the stencil
         _, q = drift_and_diffusion(scene.model, scene.noise.D)
         b = float(grid.x[0]) if scene.model.has_barrier else 0.0
-        reach = 5 * math.sqrt(2 * float(q(jnp.asarray(b), jnp.asarray(0.0))) * settings.tau) + 2 * dv
+        q_peak = float(q(jnp.asarray(b), jnp.asarray(0.0))) * peak_weight(scene, settings.tau)
+        reach = 5 * math.sqrt(2 * q_peak * settings.tau) + 2 * dv
         end = v_hi
     near = levels[levels > end - reach]
     if near.size:
@@ -175,18 +178,19 @@ def _survival(scene, settings: PathIntegration, extents, initial, keep):
     grid, ops, weights, edge = setup(scene, settings, extents)
     p0, start = start_density(scene, settings, grid, weights, initial)
     steps = [int(round((t - start) / settings.tau)) for t in scene.save_at]
+    exponents = step_exponents(scene, settings, ops, start, max(steps))
 
     def absorbed(keep):
-        def body(carry, _):
+        def body(carry, z):
             p, defect, leak = carry
             before = jnp.sum(weights * p)
-            p = ops.step(p)
+            p = ops.step(p, z)
             after = jnp.sum(weights * p)
             p = p * jnp.where(after > 0, before / after, 0.0) * keep
             return (p, defect + jnp.abs(before - after), jnp.maximum(leak, jnp.sum(edge * p))), None
 
         p = p0 * keep
-        outs = saved_scan(body, (p, jnp.zeros((), p.dtype), jnp.sum(edge * p)), steps)
+        outs = saved_scan(body, (p, jnp.zeros((), p.dtype), jnp.sum(edge * p)), steps, exponents)
         return tuple(jnp.stack(z) for z in zip(*[(jnp.sum(weights * p), d, e) for p, d, e in outs], strict=True))
 
     return jax.vmap(absorbed)(keep)

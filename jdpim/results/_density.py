@@ -13,6 +13,7 @@ smeared into it (see ``Result.lost_mass``).
 
 from __future__ import annotations
 
+import functools
 import math
 
 import jax
@@ -66,6 +67,13 @@ def bandwidth(samples, weights, rule: str = "chen", *, dim: int = 1, c: float | 
     """
     if rule not in RULES:
         raise ValueError(f"rule must be one of {RULES}, got {rule!r}")
+    c = CHEN_C if c is None else c
+    return _rule_bandwidth(samples, weights, c, rule, dim)
+
+
+@functools.partial(jax.jit, static_argnums=(3, 4))
+def _rule_bandwidth(samples, weights, c, rule: str, dim: int):
+    """:func:`bandwidth` as one compiled program per rule, dimension, shape and dtype."""
     samples, weights = _clean(samples, weights)
     wn = weights / jnp.sum(weights)
     mean = jnp.sum(wn * samples)
@@ -74,7 +82,7 @@ def bandwidth(samples, weights, rule: str = "chen", *, dim: int = 1, c: float | 
     spread = jnp.where(iqr > 0, jnp.minimum(std, iqr / 1.34), std)  # IQR 0: over half the mass at one value
     n = effective_size(weights)
     if rule == "chen":
-        return (CHEN_C if c is None else c) * spread * n ** (-1.0 / (4 + dim))
+        return c * spread * n ** (-1.0 / (4 + dim))
     if rule == "silverman":
         return (0.9 * spread * n ** (-0.2)) if dim == 1 else spread * n ** (-1.0 / 6)
     return (1.06 * std * n ** (-0.2)) if dim == 1 else std * n ** (-1.0 / 6)

@@ -195,12 +195,7 @@ class Result(AbstractResult):
             rate = jax.vmap(lambda s, ds: jax.jvp(which, (s,), (ds,))[1])(at, tangent)
         else:
             rate = at[:, which + d] if which < d else jnp.zeros(at.shape[0], at.dtype)
-        y, eps = self.samples(var, t), 16 * jnp.finfo(at.dtype).eps
-        still = jnp.abs(rate) <= eps * jnp.max(jnp.abs(v), axis=-1)
-        scale = jnp.max(jnp.abs(q), axis=-1)
-        return tuple(
-            None if b is None else still & (jnp.abs(y - b) <= eps * (jnp.abs(b) + scale)) for b in (lower, upper)
-        )
+        return _held_at(self.samples(var, t), rate, q, v, lower, upper)
 
     def _continuous(self, var, t, lower, upper, weights=None):
         """``weights`` (default: the paths') with the paths held at a bound of ``var`` set to zero."""
@@ -227,15 +222,14 @@ class Result(AbstractResult):
 
     def n_nonfinite(self):
         """Number of paths with a non-finite state, per saved time; shape ``(S,)``."""
-        return jnp.sum(~jnp.all(jnp.isfinite(self.states), axis=-1), axis=0)
+        return _n_nonfinite(self.states)
 
     def lost_mass(self):
         """Probability carried by paths with non-finite states, per saved time; shape ``(S,)``.
 
         Densities leave this mass out (they integrate to ``1 - lost_mass``).
         """
-        bad = ~jnp.all(jnp.isfinite(self.states), axis=-1)
-        return jnp.sum(jnp.where(bad, self.weights[:, None], 0.0), axis=0)
+        return _lost_mass(self.states, self.weights)
 
     def mass(self, t: float | None = None):
         """Probability carried by the paths with finite states at saved time ``t`` (``1 - lost_mass``)."""
@@ -406,3 +400,24 @@ def _pair(name: str, value) -> tuple:
     if not isinstance(value, (tuple, list)) or len(value) != 2:
         raise ValueError(f"{name} must be a pair, e.g. ('x', 'v') and (x_grid, v_grid), got {plain(value)!r}")
     return tuple(value)
+
+
+@jax.jit
+def _n_nonfinite(states):
+    return jnp.sum(~jnp.all(jnp.isfinite(states), axis=-1), axis=0)
+
+
+@jax.jit
+def _lost_mass(states, weights):
+    bad = ~jnp.all(jnp.isfinite(states), axis=-1)
+    return jnp.sum(jnp.where(bad, weights[:, None], 0.0), axis=0)
+
+
+@jax.jit
+def _held_at(y, rate, q, v, lower, upper):
+    """Per bound (``None`` where there is none): whether each path's value ``y`` ``(N,)`` lies on it and its rate
+    ``(N,)`` is zero, both to ``16 eps`` times the path's largest position ``q`` or velocity ``v`` ``(N, n)``."""
+    eps = 16 * jnp.finfo(q.dtype).eps
+    still = jnp.abs(rate) <= eps * jnp.max(jnp.abs(v), axis=-1)
+    scale = jnp.max(jnp.abs(q), axis=-1)
+    return tuple(None if b is None else still & (jnp.abs(y - b) <= eps * (jnp.abs(b) + scale)) for b in (lower, upper))
