@@ -45,7 +45,7 @@ import numpy as np
 
 from ._distributions import ANGLE
 from ._evolutionary import AbstractEvolutionarySpectrum
-from ._normals import normals
+from ._normals import normal_pair
 from ._pytree import check_int, check_real, pytree_dataclass, static_field
 
 _SQRT2 = math.sqrt(2.0)
@@ -237,19 +237,15 @@ class SpectralRepresentation(AbstractExcitation):
 class GaussianNodes(AbstractExcitation):
     r"""White noise as independent Gaussian values at the RK4 nodes, drawn inside the integration (Monte Carlo).
 
-    Args:
-        block: steps whose nodes are drawn at once (>= 1): memory ``2 block m`` values per path, fewer key
-            derivations for larger blocks. Runs with different blocks draw different normals (they differ by
-            sampling).
-
     The forcing holds values on the half-step grid (the start, middle and end of every step; the end of one
     step is the start of the next): independent standard normals ``z_j`` times ``sqrt(18 / (5 dt)) L``
     (``L L^T = D``), so that RK4's Simpson-weighted increment ``dt/6 (f_0 + 4 f_1/2 + f_1)`` carries the white
     noise's variance, ``2 D dt`` per step over many steps (end points weigh ``dt/3`` and midpoints ``2 dt/3``:
-    ``(1/9 + 4/9) dt^2 Var f = 2 D dt``). Node ``j`` of a path comes from a counter-based generator keyed by
-    the path's key and ``j``: memory of order the number of paths (no array over the time grid), no FFT, and
-    the same values whatever the chunks and devices. Not band-limited: the forcing is white up to the step's
-    resolution. DPIM needs the spectral representation (its two elementary variables per source).
+    ``(1/9 + 4/9) dt^2 Var f = 2 D dt``). The normals of a path come from a counter-based generator keyed by
+    the path's key, the step and the source (:class:`NodeSource`): memory of order the number of paths (no
+    array over the time grid), no FFT, and the same values whatever the chunks, devices and processes. Not
+    band-limited: the forcing is white up to the step's resolution. DPIM needs the spectral representation
+    (its two elementary variables per source).
 
     Examples:
         >>> import jdpim
@@ -257,11 +253,6 @@ class GaussianNodes(AbstractExcitation):
         >>> jdpim.solve(scene, jdpim.MonteCarlo(n_samples=8, seed=0)).states.shape
         (8, 1, 2)
     """
-
-    block: int = 32
-
-    def __post_init__(self):
-        check_int("block", self.block, low=1)
 
     def check(self, scene) -> None:
         """Any time grid suits it; an evolutionary spectrum does not (:func:`modulate`)."""
@@ -281,7 +272,7 @@ class GaussianNodes(AbstractExcitation):
     def from_keys(self, scene, keys) -> NodeSource:
         """The forcing of the ``n`` paths with noise key data ``keys`` ``(n, 2)``, drawn inside the steps."""
         dtype = scene.float_dtype
-        return NodeSource(keys, node_scale(scene.noise.mixing().astype(dtype), scene.dt, dtype), self.block, dtype)
+        return NodeSource(keys, node_scale(scene.noise.mixing().astype(dtype), scene.dt, dtype), dtype)
 
     def values_per_path(self, scene) -> int:
         """None: the nodes are drawn inside the steps."""
@@ -414,43 +405,45 @@ def modulate(nodes: AbstractNodes, envelope: Callable | None, dt: float) -> Abst
 class NodeSource(AbstractNodes):
     """Gaussian forcing values at the half-step nodes of ``n`` paths, drawn on demand (see :class:`GaussianNodes`).
 
-    Node 0 of a path comes from its key folded with 0; the middle and end nodes of the steps ``b B .. b B + B - 1``
-    from its key folded with ``b + 1``, in one draw of ``(B, 2, m)`` normals (one key derivation per block of
-    steps). The normals are drawn in float32 and cast to ``dtype`` (a seed gives the same samples in float32 and
-    float64 runs), then multiplied by ``scale`` ``(m, m)``.
+    Source ``i`` of a path with key ``(k1, k2)`` takes node 0 (the start of step 0) from the first word of
+    ``threefry2x32(k1, k2, 0, i)``, and the middle and end nodes of step ``k`` from the two words of
+    ``threefry2x32(k1, k2, k + 1, i)`` (:func:`jdpim._normals.normal_pair`): one hash per path, step and source.
+    Each step draws the next step's nodes into the carry, scaled: drawn in the step that reads them, the hash
+    would be fused into every RK4 stage that reads a node and computed several times per step, and the scaling
+    fused into the stages would round differently from one compiled program to another. The normals are drawn
+    in float32 and cast to ``dtype`` (a seed gives the same samples in float32 and float64 runs), then
+    multiplied by ``scale`` ``(m, m)``.
     """
 
     keys: jax.Array  # (n, 2) key data
     scale: jax.Array  # (m, m)
-    block: int = static_field()
     dtype: object = static_field()
 
     @property
     def shape(self) -> tuple[int, int]:
         return self.keys.shape[0], self.scale.shape[0]
 
+    def _pair(self, counter):
+        """``(n, m)`` complex: the nodes of every path and source for the counter word ``counter``, scaled, in
+        ``dtype`` (the middle node in the real part, the end node in the imaginary part)."""
+        shape = self.shape
+        k1, k2 = (jnp.broadcast_to(self.keys[:, j, None], shape) for j in (0, 1))
+        source = jax.lax.broadcasted_iota(np.uint32, shape, 1)
+        z = normal_pair(k1, k2, jnp.full(shape, counter, np.uint32), source)
+        return jax.lax.complex(self._scaled(jnp.real(z)), self._scaled(jnp.imag(z)))
+
+    def _scaled(self, z):
+        """``(n, m)``: float32 normals ``z`` in ``dtype``, times ``scale``."""
+        return jnp.einsum("...j,ij->...i", z.astype(self.dtype), self.scale)
+
     def start(self):
-        """Node 0 and the first block of steps."""
-        return self.first(), self.steps(0)
+        """Node 0 and the nodes of step 0."""
+        return jnp.real(self._pair(0)), self._pair(1)
 
     def step(self, k, carry):
-        e_start, drawn = carry
-        drawn = jax.lax.cond((k % self.block == 0) & (k > 0), lambda: self.steps(k // self.block), lambda: drawn)
-        mid_end = jax.lax.dynamic_index_in_dim(drawn, k % self.block, axis=0, keepdims=False)
-        return (e_start, mid_end[0], mid_end[1]), (mid_end[1], drawn)
-
-    def _draw(self, counter, shape):
-        """``(*shape[:-1], n, m)``: the path's normals of ``shape`` (last axis ``m``), key folded with ``counter``."""
-        z = jnp.moveaxis(normals(self.keys, shape, fold=counter), -1, -2).astype(self.dtype)
-        return jnp.einsum("...j,ij->...i", z, self.scale)
-
-    def first(self):
-        """Node 0 (the start of the first step), ``(n, m)``."""
-        return self._draw(0, (self.scale.shape[0],))
-
-    def steps(self, b):
-        """The middle and end nodes of the steps of block ``b``, ``(B, 2, n, m)``."""
-        return self._draw(b + 1, (self.block, 2, self.scale.shape[0]))
+        e_start, nodes = carry
+        e_end = jnp.imag(nodes)
+        return (e_start, jnp.real(nodes), e_end), (e_end, self._pair(k + 2))
 
 
 @dataclasses.dataclass(frozen=True)

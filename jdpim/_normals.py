@@ -1,12 +1,13 @@
-"""Standard normals of many keys at once: the values of ``jax.random.normal`` for each key, with the keys last.
+"""Standard normals keyed by a path's key and a counter: two normals per Threefry-2x32 hash.
 
-Monte Carlo draws its normals from one key per path. ``jax.vmap(jax.random.normal)`` over those keys gives
-every path's values, but on a CPU JAX lowers its threefry hash as a loop that XLA does not fuse, with the paths
-on the leading axis. :func:`normals` computes the same hash unrolled in ``jnp`` operations with the keys on the
-last axis, so that XLA fuses the hash, the uniform and the inverse error function into one pass over
-contiguous paths; the values are equal bit for bit (``tests/test_normals.py``). It applies to JAX's default
-keys (``threefry2x32`` with ``jax_threefry_partitionable``, the default since JAX 0.5); under other settings,
-and off a CPU (where JAX's threefry is a kernel of its own), it calls ``jax.random.normal`` itself.
+Monte Carlo draws the forcing of every path and step inside the integration. :func:`normal_pair` hashes the
+counter words ``(x1, x2)`` under the path's key with Threefry-2x32 (20 rounds, written in ``jnp`` operations
+so that XLA fuses the hash and the conversion into one pass over contiguous paths, on every platform) and
+turns each of the two 32-bit words into one float32 normal through the inverse error function. The normals
+depend on the key and the counter alone, never on the chunks, devices or processes that compute them.
+
+The pair comes back as one ``complex64``: XLA computes an elementwise fusion element by element, so two
+``float32`` outputs would each repeat the hash, while the real and imaginary parts of one element share it.
 """
 
 import math
@@ -15,11 +16,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._cpu import on_cpu
-
 _ROTATIONS = ((13, 15, 26, 6), (17, 29, 16, 24))
 _KEY_PARITY = np.uint32(0x1BD11BDA)
-_LOW = np.nextafter(np.float32(-1.0), np.float32(0.0))  # jax.random.normal's uniform lies in (-1, 1)
+_LOW = np.nextafter(np.float32(-1.0), np.float32(0.0))  # the uniform lies in (-1, 1)
 
 
 def threefry2x32(k1, k2, x1, x2):
@@ -39,34 +38,24 @@ def threefry2x32(k1, k2, x1, x2):
     return x1, x2
 
 
-def _unrolled() -> bool:
-    """Whether :func:`normals` reproduces JAX's own values here (see the module's docstring)."""
-    return on_cpu() and jax.config.jax_threefry_partitionable and jax.config.jax_default_prng_impl == "threefry2x32"
-
-
-def normals(keys, shape: tuple[int, ...], fold: int | jax.Array | None = None) -> jax.Array:
-    """Float32 standard normals ``(*shape, n)``: column ``p`` is ``jax.random.normal(key_p, shape)``.
-
-    Args:
-        keys: key data of ``n`` threefry keys, ``uint32`` of shape ``(n, 2)``.
-        shape: the shape drawn from each key.
-        fold: if given, each key is first folded with it (``jax.random.fold_in(key_p, fold)``); a Python or
-            traced integer.
-    """
-    if not _unrolled():
-
-        def one(k):
-            key = jax.random.wrap_key_data(k)
-            return jax.random.normal(key if fold is None else jax.random.fold_in(key, fold), shape, jnp.float32)
-
-        return jnp.moveaxis(jax.vmap(one)(keys), 0, -1)
-    k1, k2 = keys[:, 0], keys[:, 1]
-    if fold is not None:
-        k1, k2 = threefry2x32(k1, k2, jnp.zeros_like(k1), jnp.full_like(k1, jnp.asarray(fold, jnp.uint32)))
-    index = jax.lax.iota(np.uint32, math.prod(shape)).reshape(*shape, 1)
-    lead = (1,) * len(shape)
-    b1, b2 = threefry2x32(k1.reshape(*lead, -1), k2.reshape(*lead, -1), jnp.zeros_like(index), index)
-    mantissa = ((b1 ^ b2) >> np.uint32(9)) | np.uint32(0x3F800000)  # 23 random bits in [1, 2)
+def _normal(bits):
+    """A float32 standard normal from the 23 high bits of ``bits`` (``uint32``): ``sqrt2 erf_inv(u)`` for ``u`` on
+    a grid of step ``2^-22`` in ``(-1, 1)``, as ``jax.random.normal`` maps its bits (values in ``[-5.42, 5.22]``)."""
+    mantissa = (bits >> np.uint32(9)) | np.uint32(0x3F800000)  # 23 random bits in [1, 2)
     u = jax.lax.bitcast_convert_type(mantissa, jnp.float32) - np.float32(1.0)
     u = jnp.maximum(_LOW, u * (np.float32(1.0) - _LOW) + _LOW)
     return np.float32(math.sqrt(2.0)) * jax.lax.erf_inv(u)
+
+
+def normal_pair(k1, k2, x1, x2) -> jax.Array:
+    """Two independent float32 standard normals per element, as the real and imaginary parts of a ``complex64``.
+
+    Args:
+        k1, k2: the key words, ``uint32`` arrays.
+        x1, x2: the counter words, ``uint32`` arrays; all four broadcast together.
+
+    Returns:
+        ``complex64`` of the broadcast shape: the normals of the two words of ``threefry2x32(k1, k2, x1, x2)``.
+    """
+    b1, b2 = threefry2x32(k1, k2, x1, x2)
+    return jax.lax.complex(_normal(b1), _normal(b2))

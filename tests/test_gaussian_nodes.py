@@ -52,8 +52,6 @@ def test_dpim_refuses_and_bad_settings_fail_in_one_line():
     scene = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=1.0, dt=0.01, excitation=NODES)
     with pytest.raises(ValueError, match="DPIM needs the spectral representation"):
         jdpim.solve(scene, jdpim.DPIM(n_points=10))
-    with pytest.raises(ValueError, match="block must be an integer >= 1"):
-        jdpim.GaussianNodes(block=0)
     with pytest.raises(TypeError, match="excitation must be a jdpim.AbstractExcitation or None"):
         jdpim.Scene(jdpim.VibroImpactOscillator(), excitation="nodes")
 

@@ -7,6 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import scipy.linalg
+import scipy.stats
 
 import jdpim
 from jdpim._integrate import ImpactRule, integrate
@@ -371,7 +372,11 @@ def test_likelihood_ratio_of_several_degrees_of_freedom_matches_the_exact_deriva
     the stationary covariance solves a Lyapunov equation. The density of ``x2``, which the noise does not drive,
     differentiated with respect to ``K[0,0]`` and ``C[0,0]`` (their changes act along the noise) by the
     likelihood ratio (10000 paths, one run, score window 20 s: truncation bias about ``e^-5``), against the exact
-    derivative of the same smoothed density: within four standard errors at every grid point."""
+    derivative of the same smoothed density: within four standard errors at the grid points of the bulk, where at
+    least 1000 of the paths fall within two bandwidths (``|x2| <= 0.25``, 1.7 standard deviations; 12 normal errors:
+    a false alarm rate of at most ``7.6e-4``). Further out the few paths that carry the estimate make its error
+    heavy-tailed: over 16 seeds of each of two noise generators it reaches 4.3 standard errors at 0.35 (432 paths
+    near) and its mean square there is 1.4, while in the bulk it stays within 2.34 with mean square 0.73."""
     D, c, sigma = 0.02, 0.5, 0.05
     K = np.array([[2.0, -1.0], [-1.0, 1.0]])
     model = jdpim.MDOFOscillator(mass=np.eye(2), gains=[[1.0], [0.0]], damping=c * np.eye(2), stiffness=K)
@@ -383,18 +388,26 @@ def test_likelihood_ratio_of_several_degrees_of_freedom_matches_the_exact_deriva
         scene, names, "x2", grid, method=jdpim.MonteCarlo(n_samples=10_000, seed=0), bandwidth=sigma, estimator=est
     )
 
-    def smoothed(K, C):
+    def variance(K, C):
         A = np.block([[np.zeros((2, 2)), np.eye(2)], [-K, -C]])
         b = np.array([0.0, 0.0, 1.0, 0.0])
-        s2 = scipy.linalg.solve_continuous_lyapunov(A, -2.0 * D * np.outer(b, b))[1, 1] + sigma**2
+        return scipy.linalg.solve_continuous_lyapunov(A, -2.0 * D * np.outer(b, b))[1, 1]
+
+    def smoothed(K, C):
+        s2 = variance(K, C) + sigma**2
         return np.exp(-0.5 * grid**2 / s2) / np.sqrt(2 * np.pi * s2)
+
+    sd = np.sqrt(variance(K, c * np.eye(2)))
+    near = 10_000 * (scipy.stats.norm.cdf((grid + 2 * sigma) / sd) - scipy.stats.norm.cdf((grid - 2 * sigma) / sd))
+    bulk = near >= 1000
+    assert bulk.sum() == 6
 
     h, E = 1e-5, np.diag([1.0, 0.0])
     for name, (dK, dC) in zip(names, ((E, 0 * E), (0 * E, E)), strict=True):
         exact = (smoothed(K + h * dK, c * np.eye(2) + h * dC) - smoothed(K - h * dK, c * np.eye(2) - h * dC)) / (2 * h)
-        value, se = np.asarray(dp.value[name]), np.asarray(dp.value_stderr[name])
-        assert np.all(np.abs(value - exact) < 4 * se), (name, np.max(np.abs(value - exact) / se))
-        assert np.max(np.abs(exact)) > 5 * np.max(se)  # the check has power
+        value, se = np.asarray(dp.value[name])[bulk], np.asarray(dp.value_stderr[name])[bulk]
+        assert np.all(np.abs(value - exact[bulk]) < 4 * se), (name, np.max(np.abs(value - exact[bulk]) / se))
+        assert np.max(np.abs(exact[bulk])) > 5 * np.max(se)  # the check has power
 
 
 def test_central_difference_of_several_degrees_of_freedom_matches_the_exact_derivative():

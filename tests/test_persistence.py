@@ -136,7 +136,7 @@ def test_result_of_several_degrees_of_freedom_with_its_scene(tmp_path):
         dt=0.01,
         save_at=(1.0, 2.0),
         random={"stiffness[0,0]": jdpim.Normal(1.0, 0.1), "constraints[0].r": jdpim.Uniform(0.4, 0.6)},
-        excitation=jdpim.GaussianNodes(block=8),
+        excitation=jdpim.GaussianNodes(),
         impacts=jdpim.ImpactRule(max_impacts=3, hold=(True, False)),
         substeps=jdpim.Substeps(max_substeps=4),
     )

@@ -47,17 +47,18 @@ def test_the_frames():
 def test_first_impact_is_the_first_passage_without_contact():
     """Until the first impact a path does not feel the gap: the probability of an impact by the end of the record
     (with contact) equals that of the closing's first passage on the scene without contact, path for path
-    (the same seed), and the impact speeds have a density."""
+    (the same seed), and the impact speeds have a density: its bins cover every impact speed (eight of 0.05 up to
+    0.4 and one up to 2, far beyond the fastest impact of 20 runs of 200 paths, 0.6), so it integrates to one."""
     contact = ground(jdpim.adjacent_buildings(frequency=(2 * np.pi, 1.4 * np.pi), gap=GAP))
     free = scene_of(contact.replace(constraints=()))
     mc = jdpim.MonteCarlo(n_samples=200, seed=0)
     fp = jdpim.first_passage(free, jdpim.systems.closing(contact), [GAP, 2 * GAP], mc)
-    edges = np.linspace(0.0, 0.4, 9)
+    edges = np.append(np.linspace(0.0, 0.4, 9), 2.0)
     st = jdpim.impact_statistics(scene_of(contact), mc, speed_edges=edges)
     assert 0.1 < float(fp.probability[-1, 0]) < 0.9 and float(fp.probability[-1, 1]) < float(fp.probability[-1, 0])
     assert float(st.probability[-1]) == pytest.approx(float(fp.probability[-1, 0]), abs=1.5 / 200)
     density = np.asarray(st.speed_density[-1])
-    assert float(np.sum(density * np.diff(edges))) == pytest.approx(1.0, abs=0.05)
+    assert float(np.sum(density * np.diff(edges))) == pytest.approx(1.0, abs=1e-5)  # float32 sums
 
 
 def test_symmetric_buildings_never_pound():
