@@ -22,12 +22,14 @@ from ._passage import FirstPassage
 class PassageContext:
     """What a first-passage derivative estimator needs, from one common set of paths.
 
-    ``passed``: ``(N, S, L)`` passage indicators of the nominal paths; ``scores``: ``{name: (N, S)}`` centred
-    whole-history scores at the saved times (likelihood ratio); ``rerun(name, value)``: the indicators of the
-    same paths (same rows) with parameter ``name`` set to ``value``; ``values``: nominal parameter values.
+    ``passed``: ``(N, S, L)`` passage indicators of the nominal paths; ``probability``: ``(S, L)`` their weighted
+    mean over the finite paths; ``scores``: ``{name: (N, S)}`` centred whole-history scores at the saved times
+    (likelihood ratio); ``rerun(name, value)``: the indicators of the same paths (same rows) with parameter
+    ``name`` set to ``value``; ``values``: nominal parameter values.
     """
 
     passed: Any
+    probability: Any
     scores: dict
     values: dict
     rerun: Callable
@@ -64,7 +66,8 @@ def sampled_first_passage(method, scene: Scene, query) -> FirstPassage:
     def rerun(name, value):
         return FirstPassage.passed(tracked(with_parameters(scene, {name: value}))[..., :2], query.levels)
 
-    ctx = PassageContext(passed, scores, query.values, rerun)
+    probability = jnp.sum(w[:, None, None] * passed, axis=0) / jnp.sum(w)
+    ctx = PassageContext(passed, probability, scores, query.values, rerun)
     value, stderr = {}, {}
     for name in query.wrt:
         c = query.estimators[name].first_passage(ctx, name)  # (N, S, L) per-path contributions

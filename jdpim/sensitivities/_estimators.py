@@ -124,13 +124,15 @@ class LikelihoodRatio(AbstractEstimator):
         return {name: self}
 
     def first_passage(self, ctx, name: str):
-        """``c_i = 1_i (S_i - Sbar)``: the passage indicator times the centred score of the whole history."""
+        """``c_i = (1_i - P) (S_i - Sbar)``: the centred passage indicator times the centred score of the whole
+        history. Its mean is that of ``1_i (S_i - Sbar)`` (the scores' mean is zero); its spread is the sample
+        covariance's, whose variance ``1_i (S_i - Sbar)`` overstates by about ``1 / (1 - P)``."""
         if self.window is not None:
             raise ValueError(
                 f"first passage depends on the whole history: LikelihoodRatio(window={self.window!r}) does not "
                 "apply; leave window=None"
             )
-        return ctx.passed * ctx.scores[name][..., None]
+        return (ctx.passed - ctx.probability[None]) * ctx.scores[name][..., None]
 
     def estimate(self, ctx, name: str):
         """``c_i = K(y, Y_i) (S_i - Sbar)`` with the centred score of ``name``."""
