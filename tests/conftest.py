@@ -49,6 +49,15 @@ def pytest_unconfigure(config):
 gc.set_threshold(50_000, 20, 100)
 jax.config.update("jax_numpy_rank_promotion", "raise")
 
+
+@pytest.fixture(scope="module", autouse=True)
+def _release_compiled_programs():
+    """Drop a test file's compiled programs when it ends: each worker's memory stays that of one file's programs
+    (a later file that needs one loads it from the session's compilation cache)."""
+    yield
+    jax.clear_caches()
+    gc.collect()
+
 ALPHA, D_REF = 0.03, 0.03
 T_TRANSIENT, T_LATE = 10.0, 100.0
 
