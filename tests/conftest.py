@@ -3,14 +3,12 @@
 Compilation dominates the cost of the suite on a 2-core CPU, so expensive results are session-scoped
 fixtures reused by many tests, and sizes are small. Heavier settings carry the ``slow`` marker.
 
-Two settings apply to the test processes only (the library leaves both to the user):
+The tests compile with XLA's defaults, as users run the library. Two settings apply to the test session:
 
-- XLA:CPU compiles with its older fusion emitters (``--xla_cpu_use_fusion_emitters=false``), which
-  compile the suite's programs in a little over half the time; the code they emit runs slower, which
-  a suite of small sizes does not notice. Processes the suite starts (notebooks, command lines,
-  several processes) inherit the flag. ``JDPIM_TEST_XLA_DEFAULTS=1`` runs the suite with XLA's
-  defaults, as users run the library; so does a JAX whose XLA does not know the flag, and an
-  ``XLA_FLAGS`` that sets the emitters itself is left as it is.
+- JAX's persistent compilation cache (docs/compilation.md) in a directory made for the session and
+  removed at its end, storing every program: a program compiled again (another test's closure with the
+  same computation, a module's programs after ``jax.clear_caches``, a process the suite starts) is loaded,
+  not compiled. A ``JAX_COMPILATION_CACHE_DIR`` already set is used as it is, and kept.
 - Python's cyclic garbage collector runs less often: tracing creates many short-lived objects.
 """
 
@@ -18,8 +16,8 @@ import concurrent.futures
 import gc
 import multiprocessing
 import os
-import subprocess
-import sys
+import shutil
+import tempfile
 
 import jax
 import numpy as np
@@ -27,28 +25,38 @@ import pytest
 
 import jdpim
 
-_FAST_COMPILE_FLAG = "--xla_cpu_use_fusion_emitters=false"
+_CACHE_ENV = {
+    "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "0",
+    "JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES": "-1",
+}
 
 
-def _use_fast_compile_flag():
-    """Append the flag to ``XLA_FLAGS`` where this JAX's XLA accepts it (an unknown flag aborts XLA)."""
-    given = os.environ.get("XLA_FLAGS", "")
-    if os.environ.get("JDPIM_TEST_XLA_DEFAULTS") == "1" or "xla_cpu_use_fusion_emitters" in given:
-        return
-    flags = f"{given} {_FAST_COMPILE_FLAG}".strip()
-    probe = subprocess.run(
-        [sys.executable, "-c", "import jax.numpy as jnp; jnp.zeros(1).block_until_ready()"],
-        env=dict(os.environ, XLA_FLAGS=flags, JAX_PLATFORMS="cpu"),
-        capture_output=True,
-        timeout=300,
-    )
-    if probe.returncode == 0:
-        os.environ["XLA_FLAGS"] = flags
+def pytest_configure(config):
+    """Share one compilation cache between this process and those it starts (workers, notebooks, commands)."""
+    if "JAX_COMPILATION_CACHE_DIR" not in os.environ:
+        os.environ["JAX_COMPILATION_CACHE_DIR"] = config._jdpim_cache_dir = tempfile.mkdtemp(prefix="jdpim-jax-cache-")
+    os.environ.update(_CACHE_ENV)
+    jax.config.update("jax_compilation_cache_dir", os.environ["JAX_COMPILATION_CACHE_DIR"])
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
 
 
-_use_fast_compile_flag()  # before the first computation starts JAX's CPU backend
+def pytest_unconfigure(config):
+    if getattr(config, "_jdpim_cache_dir", None):
+        shutil.rmtree(config._jdpim_cache_dir, ignore_errors=True)
+
+
 gc.set_threshold(50_000, 20, 100)
 jax.config.update("jax_numpy_rank_promotion", "raise")
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _release_compiled_programs():
+    """Drop a test file's compiled programs when it ends: each worker's memory stays that of one file's programs
+    (a later file that needs one loads it from the session's compilation cache)."""
+    yield
+    jax.clear_caches()
+    gc.collect()
 
 ALPHA, D_REF = 0.03, 0.03
 T_TRANSIENT, T_LATE = 10.0, 100.0
@@ -88,12 +96,13 @@ def _release_compiled_code():
     jax.clear_caches()
 
 
-@pytest.fixture(autouse=True, scope="session")
+@pytest.fixture(scope="session")
 def notebook_runs(request, tmp_path_factory):
-    """The notebooks selected for this session, run one after another in a background process from its start.
+    """The notebooks selected for this session, run one after another in a background process.
 
-    Their kernels compile on the core the test process leaves idle (it compiles on one);
-    ``test_notebook_runs`` waits for each result. Maps a notebook's stem to a future.
+    They start when the first notebook test asks for them (in the process that runs those tests, when
+    pytest-xdist spreads the files over workers); ``test_notebook_runs`` waits for each result. Maps a
+    notebook's stem to a future.
     """
     from test_notebooks import NOTEBOOKS, execute
 

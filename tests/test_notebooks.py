@@ -20,7 +20,7 @@ def execute(path, workdir):
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.stem for p in NOTEBOOKS])
 def test_notebook_runs(path, notebook_runs):
-    # started at the beginning of the session (conftest.py), so this waits for the kernel's result
+    # the notebooks run one after another in a background process (conftest.py): this waits for its result
     nb = notebook_runs[path.stem].result()
     errors = [o for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", []) if o.output_type == "error"]
     assert not errors
