@@ -73,11 +73,14 @@ def test_wide_resolution_gives_the_lane_states(name, branch_free, monkeypatch, l
 def test_compact_batches_give_the_same_states_whatever_their_rows(name, monkeypatch):
     """A chunk's crossing paths go through compact batches of ``compact_rows`` rows (8 of 512 paths), as many as a
     step needs (64 in the first step of the first scene, where every path crosses): batches of 16 rows, fewer of
-    them, give the same states bit for bit, since every row is resolved by the same code whichever batch serves it."""
+    them, give the same states to rounding, since every row is resolved by the same code whichever batch serves it;
+    XLA vectorises the two widths differently (other fused multiply-adds), so the last bits may differ (measured:
+    7 of 2048 values of the damper differ, by at most 3e-8, one unit in the last place of the states' scale)."""
     scene = SCENES[name]()
     eight = _states(scene, 512, False, monkeypatch)
     monkeypatch.setattr(batches, "compact_rows", lambda n: 16)
-    np.testing.assert_array_equal(_states(scene, 512, False, monkeypatch), eight)
+    rounding = 8 * np.finfo(eight.dtype).eps * np.max(np.abs(eight))  # a few units of the states' last place
+    np.testing.assert_allclose(_states(scene, 512, False, monkeypatch), eight, rtol=0, atol=rounding)
 
 
 def test_reverse_mode_through_the_wide_resolution(monkeypatch):
