@@ -58,6 +58,7 @@ def _release_compiled_programs():
     jax.clear_caches()
     gc.collect()
 
+
 ALPHA, D_REF = 0.03, 0.03
 T_TRANSIENT, T_LATE = 10.0, 100.0
 
