@@ -106,21 +106,23 @@ def check_envelope(envelope) -> None:
         raise TypeError(
             f"envelope must be hashable (it is static structure: a function, or a frozen dataclass), got {envelope!r}"
         ) from None
-    message = _traced_scalar(envelope)
+    message = traced_scalar(envelope, "envelope", "e(t)", "a scalar time")
     if message:
         raise TypeError(message)
 
 
 @functools.lru_cache(maxsize=256)
-def _traced_scalar(envelope) -> str:
-    """``""`` where ``envelope`` traces to a real scalar on a scalar time, else why not (cached: the noise is
-    rebuilt at every pytree unflattening)."""
+def traced_scalar(fn, name: str, call: str, on: str, n_args: int = 1) -> str:
+    """``""`` where ``fn`` traces to a real scalar on ``n_args`` scalars, else why not, naming the function ``name``
+    and its form ``call`` (``"e(t)"``) traced ``on`` (``"a scalar time"``). Cached: noises are rebuilt at every
+    pytree unflattening."""
+    scalar = jax.ShapeDtypeStruct((), jnp.zeros(()).dtype)
     try:
-        out = jax.eval_shape(envelope, jax.ShapeDtypeStruct((), jnp.zeros(()).dtype))
+        out = jax.eval_shape(fn, *(scalar,) * n_args)
     except Exception as err:  # noqa: BLE001 - any failure to trace is the user's function's
-        return f"envelope must be a function e(t) that JAX can trace on a scalar time; {envelope!r} failed: {err}"
+        return f"{name} must be a function {call} that JAX can trace on {on}; {fn!r} failed: {err}"
     shape, dtype = getattr(out, "shape", None), getattr(out, "dtype", None)
     real = dtype is not None and jnp.issubdtype(dtype, jnp.number) and not jnp.issubdtype(dtype, jnp.complexfloating)
     if shape != () or not real:
-        return f"envelope must return a real scalar for a scalar time, got shape {shape} and dtype {dtype}"
+        return f"{name} must return a real scalar for {on}, got shape {shape} and dtype {dtype}"
     return ""

@@ -29,7 +29,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._envelopes import check_envelope
+from ._envelopes import check_envelope, traced_scalar
 from ._pytree import check_real
 
 
@@ -112,27 +112,12 @@ class EvolutionarySpectrum(AbstractEvolutionarySpectrum):
             raise TypeError(
                 f"density must be hashable (a function, or a frozen dataclass), got {self.density!r}"
             ) from None
-        message = _traced_pair(self.density)
+        message = traced_scalar(self.density, "density", "density(omega, t)", "scalar omega and t", 2)
         if message:
             raise TypeError(message)
 
     def __call__(self, omega, t):
         return self.density(omega, t)
-
-
-@functools.lru_cache(maxsize=256)
-def _traced_pair(density) -> str:
-    """``""`` where ``density`` traces to a real scalar on two scalars, else why not."""
-    scalar = jax.ShapeDtypeStruct((), jnp.zeros(()).dtype)
-    try:
-        out = jax.eval_shape(density, scalar, scalar)
-    except Exception as err:  # noqa: BLE001 - any failure to trace is the user's function's
-        return f"density must be a function density(omega, t) that JAX can trace on scalars; {density!r} failed: {err}"
-    shape, dtype = getattr(out, "shape", None), getattr(out, "dtype", None)
-    real = dtype is not None and jnp.issubdtype(dtype, jnp.number) and not jnp.issubdtype(dtype, jnp.complexfloating)
-    if shape != () or not real:
-        return f"density must return a real scalar for scalar omega and t, got shape {shape} and dtype {dtype}"
-    return ""
 
 
 def _law(name: str, value):
