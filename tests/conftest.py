@@ -13,10 +13,13 @@ The tests compile with XLA's defaults, as users run the library. Two settings ap
 """
 
 import concurrent.futures
+import ctypes
+import ctypes.util
 import gc
 import multiprocessing
 import os
 import shutil
+import sys
 import tempfile
 
 import jax
@@ -50,13 +53,19 @@ gc.set_threshold(50_000, 20, 100)
 jax.config.update("jax_numpy_rank_promotion", "raise")
 
 
+_LIBC = ctypes.CDLL(ctypes.util.find_library("c")) if sys.platform.startswith("linux") else None
+
+
 @pytest.fixture(scope="module", autouse=True)
 def _release_compiled_programs():
-    """Drop a test file's compiled programs when it ends: each worker's memory stays that of one file's programs
-    (a later file that needs one loads it from the session's compilation cache)."""
+    """Drop a test file's compiled programs when it ends, and hand the freed memory back to the system (glibc keeps
+    it otherwise: measured 773 -> 299 MB after a dozen small solves): each worker's memory stays that of one file's
+    programs (a later file that needs one loads it from the session's compilation cache)."""
     yield
     jax.clear_caches()
     gc.collect()
+    if _LIBC is not None and hasattr(_LIBC, "malloc_trim"):
+        _LIBC.malloc_trim(0)
 
 
 ALPHA, D_REF = 0.03, 0.03
