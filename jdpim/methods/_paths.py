@@ -567,8 +567,13 @@ def dpim_inputs(scene: Scene, n_points: int = 1000, *, points: PointSet | None =
     elif tuple(points.distributions) != distributions:
         raise ValueError(f"points.distributions do not match the scene's input space {distributions}")
     dtype = scene.float_dtype
-    rows, weights = jnp.asarray(points.theta, dtype), jnp.asarray(points.weights, dtype)
+    rows, weights = (_on_device(a, dtype) for a in (points.theta, points.weights))
     return rows, weights, _chunk(scene, points.n_points, chunk_size, "dpim")
+
+
+def _on_device(value, dtype):
+    """``value`` as a JAX array of ``dtype``: a NumPy array converted on the host (no compiled program for it)."""
+    return jnp.asarray(value, dtype) if isinstance(value, jax.Array) else jax.device_put(np.asarray(value, dtype))
 
 
 def monte_carlo_inputs(scene: Scene, n_samples: int = 10_000, *, seed: int = 0, chunk_size=None):

@@ -87,12 +87,18 @@ def constraint_bounds(planes: Planes, coefficients: np.ndarray, offset: float = 
         k = float(coefficients @ n / (n @ n))
         if k == 0 or np.max(np.abs(coefficients - k * n)) > 1e-12 * np.max(np.abs(coefficients)):
             continue
-        value = k * planes.positions[j] + offset
+        value = _affine(planes.positions, j, k, offset)
         if k > 0:
             lower = value if lower is None else jnp.maximum(lower, value)
         else:
             upper = value if upper is None else jnp.minimum(upper, value)
     return lower, upper
+
+
+@jax.jit
+def _affine(positions, j, k, offset):
+    """``k * positions[j] + offset``: a constraint's bound on a quantity, one compiled program for every one."""
+    return k * positions[j] + offset
 
 
 @pytree_dataclass
@@ -272,7 +278,7 @@ class Result(AbstractResult):
         lim = self._limits(var, t, bounds)
         y, w = self.samples(var, t), self._continuous(var, t, *lim)
         sigma = self._sigma(bandwidth, lambda: _density.bandwidth(y, w, rule, dim=1))
-        grid = jnp.asarray(grid)
+        grid = _density.program_input(grid)
         y = watch_forward(y, jax.tree_util.Partial(_kernel_contributions, w, grid, sigma, lim))
         return _density.kde(y, w, grid, sigma, bounds=lim)
 
@@ -293,7 +299,7 @@ class Result(AbstractResult):
         lim = self._limits(var, t, bounds)
         y, w = self.samples(var, t), self._continuous(var, t, *lim)
         sigma = self._sigma(bandwidth, lambda: _density.bandwidth(y, w, rule, dim=1))
-        return _density.kde_stderr(y, w, jnp.asarray(grid), sigma, bounds=lim)
+        return _density.kde_stderr(y, w, grid, sigma, bounds=lim)
 
     def joint_pdf(self, vars, grids, t: float | None = None, *, bandwidth=None, rule: str = "chen", bounds=None):
         """Joint PDF of two quantities at saved time ``t``; shape ``(len(grids[0]), len(grids[1]))``.
@@ -324,7 +330,7 @@ class Result(AbstractResult):
             if np.ndim(bandwidth) != 1 or len(bandwidth) != 2:
                 raise ValueError(f"bandwidth must be None or a pair (sigma_1, sigma_2), got {plain(bandwidth)!r}")
             sa, sb = (self._sigma(s, None) for s in bandwidth)
-        ga, gb = jnp.asarray(ga), jnp.asarray(gb)
+        ga, gb = _density.program_input(ga), _density.program_input(gb)
         a, b = watch_forward((a, b), jax.tree_util.Partial(_joint_contributions, w, (ga, gb), (sa, sb), (lim_a, lim_b)))
         if _unbounded(lim_a) and not _unbounded(lim_b):  # the bounded quantity goes first
             return _density.kde_2d(b, a, w, gb, ga, sb, sa, x_bounds=lim_b).T
@@ -345,7 +351,7 @@ class Result(AbstractResult):
             return default()
         check_real("bandwidth", bandwidth, low=0.0, low_open=True)
         arr = concrete(bandwidth)
-        return bandwidth if arr is None else jnp.asarray(arr)
+        return bandwidth if arr is None else _density.program_input(arr)
 
 
 def _kernel_contributions(weights, grid, sigma, lim, y, y_dot):
