@@ -205,7 +205,12 @@ class Result(AbstractResult):
     def _continuous(self, var, t, lower, upper, weights=None):
         """``weights`` (default: the paths') with the paths held at a bound of ``var`` set to zero."""
         weights = self.weights if weights is None else weights
-        return weights if _unbounded((lower, upper)) else _without(weights, self._held(var, t, lower, upper))
+        if _unbounded((lower, upper)):
+            return weights
+        which = self._coordinate(var)
+        if callable(which):
+            return _without(weights, self._held(var, t, lower, upper))
+        return _continuous_entry(self.states, weights, self._index(t), which, lower, upper)
 
     def atoms(self, var, t: float | None = None, *, bounds=None):
         """Probability held at the bounds of ``var`` at ``t``: ``[at lower, at upper]``, shape ``(2,)``.
@@ -435,6 +440,13 @@ def _held_entry(states, index, which: int, lower, upper):
     d = at.shape[-1] // 2
     rate = at[:, which + d] if which < d else jnp.zeros(at.shape[0], at.dtype)
     return _held_at(at[:, which], rate, at[:, :d], at[:, d:], lower, upper)
+
+
+@functools.partial(jax.jit, static_argnums=3)
+def _continuous_entry(states, weights, index, which: int, lower, upper):
+    """``weights`` with the paths held at a bound of the state's entry ``which`` (:func:`_held_entry`) set to zero:
+    one compiled program."""
+    return _without(weights, _held_entry(states, index, which, lower, upper))
 
 
 @jax.jit
