@@ -75,8 +75,10 @@ def divergence_scale(scene: Scene) -> np.ndarray | None:
     q = np.asarray(model.rest(), scene.float_dtype)
     n_times = 257 if model.time_dependent else 1  # a time-dependent load's forces at 257 times over the run
     args = (model, q, scene.n_sources, scene.t_end, n_times)
-    gains, drift = (concrete(a) for a in _rest_forces(*args))  # one compiled program per model structure
-    if gains is None or drift is None:  # inside a jit trace: concrete where the model's parameters are
+    gains = drift = None
+    if all(concrete(leaf) is not None for leaf in jax.tree_util.tree_leaves(model)):
+        gains, drift = (concrete(a) for a in _rest_forces(*args))  # one compiled program per model structure
+    if gains is None or drift is None:  # traced parameters, or inside a jit trace: concrete where they are
         with jax.ensure_compile_time_eval():
             gains, drift = (concrete(a) for a in _rest_forces.__wrapped__(*args))
     if gains is None or drift is None:
