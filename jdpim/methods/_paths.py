@@ -30,7 +30,7 @@ from .._integrate import integrate
 from .._points import PointSet, select_points
 from .._pytree import check_int, concrete
 from .._scene import Scene, with_model_parameters
-from ..results._samples import Result, model_constraints
+from ..results._samples import Result, model_constraints, nonfinite_counts
 from ._ad_guard import guard, probed
 from ._base import AbstractMethod
 
@@ -72,17 +72,15 @@ def divergence_scale(scene: Scene) -> np.ndarray | None:
     for name, dist in scene.random:
         if name in start:
             start[name] += abs(dist.mean) + 10.0 * dist.std
-    with jax.ensure_compile_time_eval():  # concrete where the model's parameters are, also inside a jit trace
-        q = jnp.asarray(model.rest(), scene.float_dtype)
-        xi = jnp.zeros((scene.n_sources,), q.dtype)
-        # the forces at rest over the run (a time-dependent load at 257 times), without and per unit noise
-        times = jnp.linspace(0.0, scene.t_end, 257 if model.time_dependent else 1, dtype=q.dtype)
-
-        def acceleration(xi, t):
-            return model.state_acceleration_at(t, q, jnp.zeros_like(q), xi)
-
-        gains = concrete(jax.vmap(jax.jacfwd(acceleration), (None, 0))(xi, times))
-        drift = concrete(jax.vmap(acceleration, (None, 0))(xi, times))
+    q = np.asarray(model.rest(), scene.float_dtype)
+    n_times = 257 if model.time_dependent else 1  # a time-dependent load's forces at 257 times over the run
+    args = (model, q, scene.n_sources, scene.t_end, n_times)
+    gains = drift = None
+    if all(concrete(leaf) is not None for leaf in jax.tree_util.tree_leaves(model)):
+        gains, drift = (concrete(a) for a in _rest_forces(*args))  # one compiled program per model structure
+    if gains is None or drift is None:  # traced parameters, or inside a jit trace: concrete where they are
+        with jax.ensure_compile_time_eval():
+            gains, drift = (concrete(a) for a in _rest_forces.__wrapped__(*args))
     if gains is None or drift is None:
         return None
     norm = np.max(np.sum(np.abs(jac), axis=1))
@@ -90,6 +88,19 @@ def divergence_scale(scene: Scene) -> np.ndarray | None:
     v = start["v0"] + norm * start["x0"] + kick + np.max(np.abs(drift)) * scene.t_end
     n = model.dimension
     return np.concatenate([np.full(n, start["x0"] + v * scene.t_end), np.full(n, v)])
+
+
+@functools.partial(jax.jit, static_argnums=(2, 4))
+def _rest_forces(model, q, n_sources: int, t_end, n_times: int):
+    """``(gains, drift)``: the accelerations per unit noise ``(T, n, n_sources)`` and without noise ``(T, n)`` of
+    ``model`` at rest (coordinates ``q``, zero velocities) at ``n_times`` times over ``[0, t_end]``."""
+    xi = jnp.zeros((n_sources,), q.dtype)
+    times = jnp.linspace(0.0, t_end, n_times, dtype=q.dtype)
+
+    def acceleration(xi, t):
+        return model.state_acceleration_at(t, q, jnp.zeros_like(q), xi)
+
+    return jax.vmap(jax.jacfwd(acceleration), (None, 0))(xi, times), jax.vmap(acceleration, (None, 0))(xi, times)
 
 
 def divergence_bound(scene: Scene) -> np.ndarray | None:
@@ -494,12 +505,20 @@ def _run_local(scene: Scene, rows, *, kind, chunk_size, block_size, devices, pro
     return jax.tree_util.tree_map(lambda *a: jax.device_put(np.concatenate(a)[:n], target), *parts)
 
 
+@jax.jit
+def _finished_states(states, bound):
+    """``states`` with those of diverged paths set to NaN where ``bound`` is given (:func:`without_diverged`), and
+    the number of paths with non-finite states per saved time (``Result.n_nonfinite``): one compiled program."""
+    states = states if bound is None else _nan_diverged(states, bound)
+    return states, nonfinite_counts(states)
+
+
 def _finish(scene: Scene, states, weights, method: str) -> Result:
-    states = without_diverged(scene, states)
+    states, counts = _finished_states(states, divergence_bound(scene))
     model = scene.model
     constraints, independent = model_constraints(model), SamplingMethod.named(method).independent
     res = Result(scene.save_at, states, weights, model.bounds(), method, model.coordinates, constraints, independent)
-    counts = concrete(res.n_nonfinite())
+    counts = concrete(counts)
     if counts is not None and counts.any():
         warnings.warn(
             f"{int(counts.max())} of {res.n_paths} paths have non-finite or diverged states (beyond {DIVERGED:g} "
@@ -550,8 +569,13 @@ def dpim_inputs(scene: Scene, n_points: int = 1000, *, points: PointSet | None =
     elif tuple(points.distributions) != distributions:
         raise ValueError(f"points.distributions do not match the scene's input space {distributions}")
     dtype = scene.float_dtype
-    rows, weights = jnp.asarray(points.theta, dtype), jnp.asarray(points.weights, dtype)
+    rows, weights = (_on_device(a, dtype) for a in (points.theta, points.weights))
     return rows, weights, _chunk(scene, points.n_points, chunk_size, "dpim")
+
+
+def _on_device(value, dtype):
+    """``value`` as a JAX array of ``dtype``: a NumPy array converted on the host (no compiled program for it)."""
+    return jnp.asarray(value, dtype) if isinstance(value, jax.Array) else jax.device_put(np.asarray(value, dtype))
 
 
 def monte_carlo_inputs(scene: Scene, n_samples: int = 10_000, *, seed: int = 0, chunk_size=None):
@@ -559,8 +583,15 @@ def monte_carlo_inputs(scene: Scene, n_samples: int = 10_000, *, seed: int = 0, 
     n = check_int("n_samples", n_samples, low=2)
     seed = check_int("seed", seed, low=0)
     check_memory(scene, n, "n_samples", 8)
-    keys = jax.random.key_data(jax.random.split(jax.random.key(seed), n))
-    return keys, jnp.full((n,), 1.0 / n, scene.float_dtype), _chunk(scene, n, chunk_size, "monte_carlo")
+    keys, weights = _monte_carlo_rows(np.int64(seed), n, scene.float_dtype)
+    return keys, weights, _chunk(scene, n, chunk_size, "monte_carlo")
+
+
+@functools.partial(jax.jit, static_argnums=(1, 2))
+def _monte_carlo_rows(seed, n: int, dtype):
+    """Key data ``(n, 2)`` of ``n`` paths (the key of the integer ``seed``, as ``jax.random.key`` reads a Python
+    integer, split ``n`` ways) and their weights ``1 / n``: one compiled program per ``n`` and dtype."""
+    return jax.random.key_data(jax.random.split(jax.random.key(seed), n)), jnp.full((n,), 1.0 / n, dtype)
 
 
 class SamplingMethod(AbstractMethod):

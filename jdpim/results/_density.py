@@ -27,6 +27,12 @@ CHEN_C = 1.25  # constant c of Chen & Yang's rule; L1 errors vs exact solutions 
 _POINT_CHUNK = 2048
 
 
+def program_input(value):
+    """``value`` ready to enter a compiled program: a JAX array (or tracer) as it is, anything else (a NumPy array,
+    a list, a number) as a NumPy array, converted to JAX's dtype where it enters, with no program of its own."""
+    return value if isinstance(value, jax.Array) else np.asarray(value)
+
+
 def _clean(samples, weights):
     """Zero the weight (and value) of non-finite samples (their mass is left out, not redistributed)."""
     ok = jnp.isfinite(samples)
@@ -200,7 +206,7 @@ def kde(samples, weights, grid, sigma, barrier=None, *, bounds=None):
     """
     _check_kernel("grid", grid, sigma)
     lim = limits(barrier, bounds)
-    return _kde(jnp.asarray(samples), jnp.asarray(weights), jnp.asarray(grid), sigma, lim)
+    return _kde(*map(program_input, (samples, weights, grid)), sigma, lim)
 
 
 @jax.jit
@@ -235,7 +241,7 @@ def kde_stderr(samples, weights, grid, sigma, barrier=None, *, bounds=None):
     """
     _check_kernel("grid", grid, sigma)
     lim = limits(barrier, bounds)
-    return _kde_stderr(jnp.asarray(samples), jnp.asarray(weights), jnp.asarray(grid), sigma, lim)
+    return _kde_stderr(*map(program_input, (samples, weights, grid)), sigma, lim)
 
 
 @jax.jit
@@ -267,8 +273,7 @@ def kde_difference(lo, hi, weights, grid, sigma, barrier=None, *, bounds=None):
     """
     _check_kernel("grid", grid, sigma)
     lim = limits(barrier, bounds)
-    lo, hi, weights = jnp.asarray(lo), jnp.asarray(hi), jnp.asarray(weights)
-    return _kde_difference(lo, hi, weights, jnp.asarray(grid), sigma, lim)
+    return _kde_difference(*map(program_input, (lo, hi, weights, grid)), sigma, lim)
 
 
 @jax.jit
@@ -301,8 +306,7 @@ def kde_2d(x, v, weights, x_grid, v_grid, sigma_x, sigma_v, barrier=None, *, x_b
     _check_kernel("x_grid", x_grid, sigma_x)
     _check_kernel("v_grid", v_grid, sigma_v)
     lim_x, lim_v = limits(barrier, x_bounds, "x_bounds"), limits(None, v_bounds, "v_bounds")
-    args = (jnp.asarray(x), jnp.asarray(v), jnp.asarray(weights), jnp.asarray(x_grid), jnp.asarray(v_grid))
-    return _kde_2d(*args, sigma_x, sigma_v, lim_x, lim_v)
+    return _kde_2d(*map(program_input, (x, v, weights, x_grid, v_grid)), sigma_x, sigma_v, lim_x, lim_v)
 
 
 @jax.jit

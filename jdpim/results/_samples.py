@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import functools
 from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._pytree import check_grid, check_points, check_real, concrete, plain, pytree_dataclass, static_field
+from .._pytree import check_grid, check_int, check_points, check_real, concrete, plain, pytree_dataclass, static_field
 from .._scene import static_times
 from .._tangents import PROJECTIONS, projections, watch, watch_forward
 from . import _density
@@ -86,12 +87,18 @@ def constraint_bounds(planes: Planes, coefficients: np.ndarray, offset: float = 
         k = float(coefficients @ n / (n @ n))
         if k == 0 or np.max(np.abs(coefficients - k * n)) > 1e-12 * np.max(np.abs(coefficients)):
             continue
-        value = k * planes.positions[j] + offset
+        value = _affine(planes.positions, j, k, offset)
         if k > 0:
             lower = value if lower is None else jnp.maximum(lower, value)
         else:
             upper = value if upper is None else jnp.minimum(upper, value)
     return lower, upper
+
+
+@jax.jit
+def _affine(positions, j, k, offset):
+    """``k * positions[j] + offset``: a constraint's bound on a quantity, one compiled program for every one."""
+    return k * positions[j] + offset
 
 
 @pytree_dataclass
@@ -143,9 +150,8 @@ class Result(AbstractResult):
 
     def samples(self, var, t: float | None = None):
         """The values of ``var`` (a coordinate name or a function of the state) of every path at ``t``; ``(N,)``."""
-        which = self._coordinate(var)
-        at = self.states[:, self._index(t)]
-        return jax.vmap(which)(at) if callable(which) else at[:, which]
+        which, index = self._coordinate(var), self._index(t)
+        return jax.vmap(which)(self.states[:, index]) if callable(which) else _entry(self.states, index, which)
 
     def bounds(self, var):
         """``(lower, upper)``: the range of ``var`` the model's constraints imply (``None`` for a side without one).
@@ -186,24 +192,25 @@ class Result(AbstractResult):
         rounding (``16 eps`` times the path's largest position or velocity): a path resting on a constraint,
         not one passing through it.
         """
-        at = self.states[:, self._index(t)]
+        which, index = self._coordinate(var), self._index(t)
+        if not callable(which):
+            return _held_entry(self.states, index, which, lower, upper)
+        at = self.states[:, index]
         d = at.shape[-1] // 2
         q, v = at[:, :d], at[:, d:]
-        which = self._coordinate(var)
-        if callable(which):
-            tangent = jnp.concatenate([v, jnp.zeros_like(v)], axis=-1)
-            rate = jax.vmap(lambda s, ds: jax.jvp(which, (s,), (ds,))[1])(at, tangent)
-        else:
-            rate = at[:, which + d] if which < d else jnp.zeros(at.shape[0], at.dtype)
+        tangent = jnp.concatenate([v, jnp.zeros_like(v)], axis=-1)
+        rate = jax.vmap(lambda s, ds: jax.jvp(which, (s,), (ds,))[1])(at, tangent)
         return _held_at(self.samples(var, t), rate, q, v, lower, upper)
 
     def _continuous(self, var, t, lower, upper, weights=None):
         """``weights`` (default: the paths') with the paths held at a bound of ``var`` set to zero."""
         weights = self.weights if weights is None else weights
-        for held in () if _unbounded((lower, upper)) else self._held(var, t, lower, upper):
-            if held is not None:
-                weights = jnp.where(held, 0.0, weights)
-        return weights
+        if _unbounded((lower, upper)):
+            return weights
+        which = self._coordinate(var)
+        if callable(which):
+            return _without(weights, self._held(var, t, lower, upper))
+        return _continuous_entry(self.states, weights, self._index(t), which, lower, upper)
 
     def atoms(self, var, t: float | None = None, *, bounds=None):
         """Probability held at the bounds of ``var`` at ``t``: ``[at lower, at upper]``, shape ``(2,)``.
@@ -222,7 +229,7 @@ class Result(AbstractResult):
 
     def n_nonfinite(self):
         """Number of paths with a non-finite state, per saved time; shape ``(S,)``."""
-        return _n_nonfinite(self.states)
+        return nonfinite_counts(self.states)
 
     def lost_mass(self):
         """Probability carried by paths with non-finite states, per saved time; shape ``(S,)``.
@@ -276,7 +283,7 @@ class Result(AbstractResult):
         lim = self._limits(var, t, bounds)
         y, w = self.samples(var, t), self._continuous(var, t, *lim)
         sigma = self._sigma(bandwidth, lambda: _density.bandwidth(y, w, rule, dim=1))
-        grid = jnp.asarray(grid)
+        grid = _density.program_input(grid)
         y = watch_forward(y, jax.tree_util.Partial(_kernel_contributions, w, grid, sigma, lim))
         return _density.kde(y, w, grid, sigma, bounds=lim)
 
@@ -297,7 +304,7 @@ class Result(AbstractResult):
         lim = self._limits(var, t, bounds)
         y, w = self.samples(var, t), self._continuous(var, t, *lim)
         sigma = self._sigma(bandwidth, lambda: _density.bandwidth(y, w, rule, dim=1))
-        return _density.kde_stderr(y, w, jnp.asarray(grid), sigma, bounds=lim)
+        return _density.kde_stderr(y, w, grid, sigma, bounds=lim)
 
     def joint_pdf(self, vars, grids, t: float | None = None, *, bandwidth=None, rule: str = "chen", bounds=None):
         """Joint PDF of two quantities at saved time ``t``; shape ``(len(grids[0]), len(grids[1]))``.
@@ -328,7 +335,7 @@ class Result(AbstractResult):
             if np.ndim(bandwidth) != 1 or len(bandwidth) != 2:
                 raise ValueError(f"bandwidth must be None or a pair (sigma_1, sigma_2), got {plain(bandwidth)!r}")
             sa, sb = (self._sigma(s, None) for s in bandwidth)
-        ga, gb = jnp.asarray(ga), jnp.asarray(gb)
+        ga, gb = _density.program_input(ga), _density.program_input(gb)
         a, b = watch_forward((a, b), jax.tree_util.Partial(_joint_contributions, w, (ga, gb), (sa, sb), (lim_a, lim_b)))
         if _unbounded(lim_a) and not _unbounded(lim_b):  # the bounded quantity goes first
             return _density.kde_2d(b, a, w, gb, ga, sb, sa, x_bounds=lim_b).T
@@ -341,11 +348,7 @@ class Result(AbstractResult):
 
     def moment(self, var, order: int, t: float | None = None):
         """Weighted raw moment ``E[var^order]`` at time ``t`` over the paths with finite states."""
-        y = self.samples(var, t)
-        ok = jnp.isfinite(y)
-        w = jnp.where(ok, self.weights, 0.0)
-        y = watch_forward(y, jax.tree_util.Partial(_moment_contributions, w, order))
-        return jnp.sum(w * jnp.where(ok, y, 0.0) ** order) / jnp.sum(w)
+        return _moment(self.samples(var, t), self.weights, check_int("order", order, low=0))
 
     @staticmethod
     def _sigma(bandwidth, default):
@@ -353,7 +356,7 @@ class Result(AbstractResult):
             return default()
         check_real("bandwidth", bandwidth, low=0.0, low_open=True)
         arr = concrete(bandwidth)
-        return bandwidth if arr is None else jnp.asarray(arr)
+        return bandwidth if arr is None else _density.program_input(arr)
 
 
 def _kernel_contributions(weights, grid, sigma, lim, y, y_dot):
@@ -384,6 +387,15 @@ def _joint_contributions(weights, grids, sigmas, lims, y, y_dot):
     return jnp.where(ok[:, None], weights[:, None] * c, 0.0)
 
 
+@functools.partial(jax.jit, static_argnums=2)
+def _moment(y, weights, order: int):
+    """``E[y^order]`` over the finite values of ``y`` ``(N,)`` with ``weights`` ``(N,)``: one compiled program."""
+    ok = jnp.isfinite(y)
+    w = jnp.where(ok, weights, 0.0)
+    y = watch_forward(y, jax.tree_util.Partial(_moment_contributions, w, order))
+    return jnp.sum(w * jnp.where(ok, y, 0.0) ** order) / jnp.sum(w)
+
+
 def _moment_contributions(weights, order, y, y_dot):
     """Per-path contributions ``(N,)`` to the forward-mode derivative of :meth:`Result.moment`."""
     ok = jnp.isfinite(y)
@@ -403,7 +415,8 @@ def _pair(name: str, value) -> tuple:
 
 
 @jax.jit
-def _n_nonfinite(states):
+def nonfinite_counts(states):
+    """``(S,)``: the number of paths of ``states`` ``(N, S, n_state)`` with a non-finite state at each saved time."""
     return jnp.sum(~jnp.all(jnp.isfinite(states), axis=-1), axis=0)
 
 
@@ -411,6 +424,38 @@ def _n_nonfinite(states):
 def _lost_mass(states, weights):
     bad = ~jnp.all(jnp.isfinite(states), axis=-1)
     return jnp.sum(jnp.where(bad, weights[:, None], 0.0), axis=0)
+
+
+@functools.partial(jax.jit, static_argnums=2)
+def _entry(states, index, which: int):
+    """``(N,)``: entry ``which`` of every path's state in ``states`` ``(N, S, n_state)`` at saved time ``index``."""
+    return states[:, index, which]
+
+
+@functools.partial(jax.jit, static_argnums=2)
+def _held_entry(states, index, which: int, lower, upper):
+    """:func:`_held_at` of the state's entry ``which`` (its rate: the matching velocity for a position, zero for a
+    velocity) at saved time ``index``: one compiled program."""
+    at = states[:, index]
+    d = at.shape[-1] // 2
+    rate = at[:, which + d] if which < d else jnp.zeros(at.shape[0], at.dtype)
+    return _held_at(at[:, which], rate, at[:, :d], at[:, d:], lower, upper)
+
+
+@functools.partial(jax.jit, static_argnums=3)
+def _continuous_entry(states, weights, index, which: int, lower, upper):
+    """``weights`` with the paths held at a bound of the state's entry ``which`` (:func:`_held_entry`) set to zero:
+    one compiled program."""
+    return _without(weights, _held_entry(states, index, which, lower, upper))
+
+
+@jax.jit
+def _without(weights, held):
+    """``weights`` ``(N,)`` set to zero where any of ``held`` (a tuple of ``(N,)`` bools or ``None``) is true."""
+    for h in held:
+        if h is not None:
+            weights = jnp.where(h, 0.0, weights)
+    return weights
 
 
 @jax.jit
