@@ -67,7 +67,7 @@ def test_derivatives_equal_differences_of_the_same_solver():
     parameter is compared with the likelihood ratio above)."""
     with jax.enable_x64(True):
         scene = reference_scene().replace(save_at=(10.0,), dtype="float64")
-        settings = jdpim.PathIntegration(n_x=61, n_v=121, x_max=1.6, v_max=1.6)
+        settings = jdpim.PathIntegration(n_x=41, n_v=81, x_max=1.6, v_max=1.6)  # small: one solver against itself
         levels = [0.3, 0.6]
         fp = jdpim.first_passage(scene, "x", levels, settings, wrt=("r", "D"))
         for name, value, h in (("r", 0.98, 1e-4), ("D", 0.03, 1e-5)):
@@ -166,7 +166,7 @@ def test_raw_jacfwd_equals_the_derivative_of_wrt():
     """``jax.jacfwd`` of ``first_passage(...).probability`` by path integration, as a user writes it, gives
     ``FirstPassage.derivative``."""
     scene = reference_scene().replace(save_at=(10.0,))
-    settings = jdpim.PathIntegration(n_x=61, n_v=121, x_max=1.6, v_max=1.6, order=4)
+    settings = jdpim.PathIntegration(n_x=41, n_v=81, x_max=1.6, v_max=1.6, order=4)  # small: two calls, one grid
     fp = jdpim.first_passage(scene, "x", 0.5, settings, wrt="alpha")
 
     def p(alpha):

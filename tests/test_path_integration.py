@@ -83,8 +83,13 @@ def test_user_initial_density_stationary_stays():
         assert max(errors(res, 10.0, np.inf)) <= 2e-3
 
 
-def test_float32_agrees_with_float64(stationary64):
-    res32 = jdpim.path_integration(elastic("float32"), SMALL, stationary=True)
+@pytest.fixture(scope="module")
+def stationary32():
+    return jdpim.path_integration(elastic("float32"), SMALL, stationary=True)
+
+
+def test_float32_agrees_with_float64(stationary64, stationary32):
+    res32 = stationary32
     assert res32.density.dtype == jnp.float32
     assert metrics.l1(np.asarray(res32.pdf("x", XG)), stationary64["pdf_x"], XG) < 1e-4
 
@@ -144,9 +149,14 @@ def test_stationary_grad_matches_central_differences():
     settings = jdpim.PathIntegration(n_x=41, n_v=81, x_max=2.5, v_max=2.5, tau=0.2, order=4)
     with jax.enable_x64(True):
         theta = jnp.array([0.05, 0.05, 0.87, 0.03, 0.1])  # alpha, gamma, r, D, barrier
-        f = jax.jit(lambda th: _stationary_features(th, settings)[0])
-        grad = np.asarray(jax.grad(f)(theta))[:4]
-        fd = _central(f, theta, n=4)  # the barrier moves this coarse grid: see the slow test for it
+
+        def f(th):
+            return _stationary_features(th, settings)[0]
+
+        value_and_grad = jax.jit(jax.value_and_grad(f))  # one program: the solve, its adjoint and the value
+        grad = np.asarray(value_and_grad(theta)[1])[:4]
+        # the barrier moves this coarse grid: see the slow test for it
+        fd = _central(lambda th: value_and_grad(th)[0], theta, n=4)
     assert np.max(np.abs(grad - fd) / (np.abs(fd) + 1e-2)) < 1e-3, (grad, fd)
 
 
@@ -214,20 +224,20 @@ def test_bad_inputs_are_named():
         )(0.01)
 
 
-def test_a_stationary_density_refuses_a_finite_time():
+def test_a_stationary_density_refuses_a_finite_time(stationary32):
     """A stationary result holds the limit t -> inf: a finite t is an error, not silently the stationary density."""
-    res = jdpim.path_integration(elastic("float32"), SMALL, stationary=True)
+    res = stationary32
     grid = np.linspace(0.0, 1.0, 5)
     np.testing.assert_array_equal(np.asarray(res.pdf("x", grid, t=math.inf)), np.asarray(res.pdf("x", grid)))
     with pytest.raises(ValueError, match="t=5.0 for a stationary density"):
         res.pdf("x", grid, t=5.0)
 
 
-def test_reports_draw_a_stationary_density_at_every_saved_time():
+def test_reports_draw_a_stationary_density_at_every_saved_time(stationary32):
     """``jdpim paper`` compares transient results with a stationary reference at each saved time."""
     from jdpim import _report as report
 
-    res = jdpim.path_integration(elastic("float32"), SMALL, stationary=True)
+    res = stationary32
     grid = np.linspace(0.0, 1.0, 5)
     arrays = report.densities({"ref": res}, (10.0, 30.0), {"x": grid}, {("x", "v"): (grid, grid)}, (30.0,))
     assert arrays["ref_pdf_x"].shape == (2, 5) and arrays["ref_joint"].shape == (1, 5, 5)
