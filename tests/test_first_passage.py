@@ -11,18 +11,26 @@ import jdpim
 REF = jdpim.VibroImpactOscillator()  # alpha = gamma = 0.03, r = 0.98
 
 
-def test_the_running_maximum_sees_every_step_not_only_the_saved_times():
-    """Saved at two times, the probabilities equal those of the maxima over every step's saved state."""
-    dense = jdpim.Scene(REF, noise=jdpim.WhiteNoise(D=0.03), t_end=3.0, dt=0.01, save_at=np.arange(301) * 0.01)
-    sparse = dense.replace(save_at=(1.0, 3.0))
-    method = jdpim.MonteCarlo(n_samples=500, seed=3)
-    levels = [0.1, 0.2, 0.4]
-    fp = jdpim.first_passage(sparse, "x", levels, method)
-    x = np.asarray(jdpim.solve(dense, method).states[..., 0])  # (N, 301): every step of the same paths
-    for i, k in enumerate((100, 300)):
-        brute = np.sum(np.max(x[:, : k + 1], axis=1)[:, None] > np.asarray(levels), axis=0)  # paths passed
-        np.testing.assert_array_equal(np.round(np.asarray(fp.probability[i]) * 500), brute)
-    only_saved = np.sum(np.max(x[:, [0, 100, 300]], axis=1)[:, None] > np.asarray(levels), axis=0)
+# One scene, one set of paths and one set of levels for the tests below that need a first-passage run of the
+# reference oscillator: its programs are compiled once.
+PASSAGE_SCENE = jdpim.Scene(REF, noise=jdpim.WhiteNoise(D=0.03), t_end=3.0, dt=0.01, save_at=(0.0, 1.0, 2.0, 3.0))
+PASSAGE_MC = jdpim.MonteCarlo(n_samples=1000, seed=0)
+LEVELS = [0.1, 0.3, 0.6]
+
+
+@pytest.fixture(scope="module")
+def passage():
+    return jdpim.first_passage(PASSAGE_SCENE, "x", LEVELS, PASSAGE_MC)
+
+
+def test_the_running_maximum_sees_every_step_not_only_the_saved_times(passage):
+    """Saved at a few times, the probabilities equal those of the maxima over every step's saved state."""
+    dense = PASSAGE_SCENE.replace(save_at=np.arange(301) * 0.01)
+    x = np.asarray(jdpim.solve(dense, PASSAGE_MC).states[..., 0])  # (N, 301): every step of the same paths
+    for i, k in enumerate((0, 100, 200, 300)):
+        brute = np.sum(np.max(x[:, : k + 1], axis=1)[:, None] > np.asarray(LEVELS), axis=0)  # paths passed
+        np.testing.assert_array_equal(np.round(np.asarray(passage.probability[i]) * 1000), brute)
+    only_saved = np.sum(np.max(x[:, [0, 100, 200, 300]], axis=1)[:, None] > np.asarray(LEVELS), axis=0)
     assert np.all(only_saved < brute)  # the saved times alone miss passages
 
 
@@ -114,32 +122,31 @@ def test_derivatives_take_the_likelihood_ratio_for_drift_and_differences_for_res
     assert dp.derivative_stderr is None and dp.derivative["r"].shape == (1, 1)
 
 
-def test_estimators_that_do_not_apply_are_refused_in_one_line():
-    scene = jdpim.Scene(REF, noise=jdpim.WhiteNoise(D=0.03), t_end=1.0, dt=0.01)
+def test_estimators_that_do_not_apply_are_refused_in_one_line(passage):
     with pytest.raises(ValueError, match="LikelihoodRatio applies to drift parameters only, not 'r'"):
-        jdpim.first_passage(scene, "x", 0.4, jdpim.MonteCarlo(n_samples=10), wrt="r", estimator=jdpim.LikelihoodRatio())
+        jdpim.first_passage(PASSAGE_SCENE, "x", 0.4, PASSAGE_MC, wrt="r", estimator=jdpim.LikelihoodRatio())
+    # these two are refused once the paths are run: Pathwise runs the program of the passage fixture (no scores),
+    # the window a barrier-free scene's (quick to compile)
+    with pytest.raises(ValueError, match="Pathwise does not estimate first-passage derivatives"):
+        jdpim.first_passage(PASSAGE_SCENE, "x", LEVELS, PASSAGE_MC, wrt="alpha", estimator=jdpim.Pathwise())
+    free = jdpim.Scene(REF.replace(barrier=None), noise=jdpim.WhiteNoise(D=0.03), t_end=0.1, dt=0.01)
     with pytest.raises(ValueError, match="whole history"):
         jdpim.first_passage(
-            scene, "x", 0.4, jdpim.MonteCarlo(n_samples=10), wrt="alpha", estimator=jdpim.LikelihoodRatio(window=5.0)
+            free, "x", 0.4, jdpim.MonteCarlo(n_samples=10), wrt="alpha", estimator=jdpim.LikelihoodRatio(window=5.0)
         )
-    with pytest.raises(ValueError, match="Pathwise does not estimate first-passage derivatives"):
-        jdpim.first_passage(scene, "x", 0.4, jdpim.MonteCarlo(n_samples=10), wrt="alpha", estimator=jdpim.Pathwise())
 
 
-def test_probabilities_grow_with_time_fall_with_the_level_and_carry_binomial_errors():
-    scene = jdpim.Scene(REF, noise=jdpim.WhiteNoise(D=0.03), t_end=6.0, dt=0.01, save_at=(0.0, 2.0, 4.0, 6.0))
-    levels = [0.1, 0.3, 0.6]
-    fp = jdpim.first_passage(scene, "x", levels, jdpim.MonteCarlo(n_samples=1000, seed=0))
-    p = np.asarray(fp.probability)
+def test_probabilities_grow_with_time_fall_with_the_level_and_carry_binomial_errors(passage):
+    fp, p = passage, np.asarray(passage.probability)
     assert p.shape == (4, 3) and np.all(p[0] == 0.0)  # from rest at the barrier: nothing has passed at t = 0
     assert np.all(np.diff(p, axis=0) >= 0) and np.all(np.diff(p, axis=1) <= 0)
     assert p[-1, 0] > 0.5 and 0.0 < p[-1, -1] < p[-1, 0]
     # float32: p near 1 is rounded to about 1e-6, which (1 - p)^2 turns into 0.5 % at p = 0.998
     np.testing.assert_allclose(np.asarray(fp.probability_stderr), np.sqrt(p * (1 - p) / 1000), rtol=1e-2, atol=1e-7)
-    value, stderr = fp.at(4.0)
+    value, stderr = fp.at(2.0)
     np.testing.assert_array_equal(np.asarray(value), p[2])
     assert np.all(np.asarray(fp.lost_mass) == 0.0)
-    dp = jdpim.first_passage(scene, "x", levels, jdpim.DPIM(n_points=300))
+    dp = jdpim.first_passage(PASSAGE_SCENE, "x", LEVELS, jdpim.DPIM(n_points=300))
     assert dp.probability_stderr is None and dp.method == "dpim" and dp.at()[1] is None
     assert np.all(np.abs(np.asarray(dp.probability) - p) < 5 * np.asarray(fp.probability_stderr) + 0.02)
 
@@ -166,11 +173,9 @@ def test_a_path_that_passes_before_it_diverges_counts_as_passed():
     np.testing.assert_array_equal(p[:, 1], [0.0, 0.0])
 
 
-def test_the_result_passes_through_jit():
-    scene = jdpim.Scene(REF, t_end=1.0, dt=0.01)
-    fp = jdpim.first_passage(scene, "x", [0.05], jdpim.MonteCarlo(n_samples=50, seed=0))
-    twice = jax.jit(lambda f: f.probability * 2.0)(fp)
-    np.testing.assert_array_equal(np.asarray(twice), 2.0 * np.asarray(fp.probability))
+def test_the_result_passes_through_jit(passage):
+    twice = jax.jit(lambda f: f.probability * 2.0)(passage)
+    np.testing.assert_array_equal(np.asarray(twice), 2.0 * np.asarray(passage.probability))
 
 
 SCENE = jdpim.Scene(REF, t_end=1.0, dt=0.01)

@@ -66,16 +66,20 @@ def test_monte_carlo_is_deterministic_and_chunk_independent(elastic_scene):
     assert not np.allclose(np.asarray(a.states), np.asarray(c.states))
 
 
-def test_dpim_is_deterministic(elastic_scene):
-    s = elastic_scene.replace(t_end=10.0, save_at=(5.0, 10.0))
+@pytest.fixture(scope="module")
+def short_scene(elastic_scene):
+    """Saved at the start and twice after it, from a given state: one DPIM program for the tests below."""
+    return elastic_scene.replace(t_end=1.0, save_at=(0.0, 0.5, 1.0), x0=0.5, v0=0.1)
+
+
+def test_dpim_is_deterministic(short_scene):
     np.testing.assert_array_equal(
-        np.asarray(jdpim.dpim(s, n_points=50).states), np.asarray(jdpim.dpim(s, n_points=50).states)
+        np.asarray(jdpim.dpim(short_scene, n_points=16).states), np.asarray(jdpim.dpim(short_scene, n_points=16).states)
     )
 
 
-def test_saved_times_and_initial_state(elastic_scene):
-    s = elastic_scene.replace(t_end=1.0, save_at=(0.0, 0.5, 1.0), x0=0.5, v0=0.1)
-    res = jdpim.dpim(s, n_points=16)
+def test_saved_times_and_initial_state(short_scene):
+    res = jdpim.dpim(short_scene, n_points=16)
     np.testing.assert_allclose(np.asarray(res.times), [0.0, 0.5, 1.0])
     np.testing.assert_allclose(np.asarray(res.states[:, 0]), np.tile([0.5, 0.1], (16, 1)))
     with pytest.raises(ValueError, match="not saved"):

@@ -44,13 +44,13 @@ def test_results_pass_through_jit_as_arguments_and_outputs(results, name):
 
 
 def test_a_batch_of_results_passes_through_vmap(scene):
-    points = jdpim.dpim_points(scene, 32)
+    points = jdpim.dpim_points(scene, 64)  # the size of results["dpim"]: run(D) below reuses its program
 
     def run(D):
         return jdpim.dpim(scene.replace(noise=jdpim.WhiteNoise(D=D)), points=points)
 
     batch = jax.vmap(run)(jnp.array([0.02, 0.04]))
-    assert batch.states.shape == (2, 32, 2, 2) and batch.times == (1.0, 2.0)
+    assert batch.states.shape == (2, 64, 2, 2) and batch.times == (1.0, 2.0)
     pdfs = jax.vmap(lambda r: r.pdf("x", GRID, 2.0))(batch)
     for i, D in enumerate((0.02, 0.04)):
         np.testing.assert_allclose(np.asarray(pdfs[i]), np.asarray(run(D).pdf("x", GRID, 2.0)), rtol=2e-5, atol=1e-7)
