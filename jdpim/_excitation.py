@@ -249,9 +249,9 @@ class GaussianNodes(AbstractExcitation):
 
     Examples:
         >>> import jdpim
-        >>> scene = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=1.0, dt=0.01, excitation=jdpim.GaussianNodes())
-        >>> jdpim.solve(scene, jdpim.MonteCarlo(n_samples=8, seed=0)).states.shape
-        (8, 1, 2)
+        >>> scene = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=2.0, dt=0.01, excitation=jdpim.GaussianNodes())
+        >>> jdpim.solve(scene, jdpim.MonteCarlo(n_samples=64, seed=0)).states.shape
+        (64, 1, 2)
     """
 
     def check(self, scene) -> None:

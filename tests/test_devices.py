@@ -26,6 +26,25 @@ def test_blocks_give_the_same_states_as_one_call(capsys):
     assert capsys.readouterr().err == ""
 
 
+# One process for both checks below (each process imports JAX and jdpim): it splits its CPU into two devices
+# with jdpim.use_cpu_cores, as a user does, and then runs on them.
+_CPU_CORES = textwrap.dedent(
+    """
+    import jax, pytest, jdpim
+    from jdpim._cpu import start_devices
+    with pytest.raises(ValueError, match="n must be"):
+        jdpim.use_cpu_cores(0)
+    assert jdpim.use_cpu_cores(2) == 2
+    assert jax.device_count() == 2  # the first computation starts JAX with two CPU devices
+    assert jdpim.use_cpu_cores(2) == 2  # asking again for what runs is fine
+    with pytest.raises(RuntimeError, match="already runs on 2 CPU device"):
+        jdpim.use_cpu_cores(3)
+    assert start_devices(None) == "2 CPU device(s)"  # the command line leaves a started JAX alone
+    with pytest.raises(ValueError, match="already runs on 2"):
+        start_devices(3)
+    print("cores ok")
+    """
+)
 _SHARDED = textwrap.dedent(
     """
     import jax, numpy as np, jdpim
@@ -45,48 +64,31 @@ _SHARDED = textwrap.dedent(
     np.testing.assert_array_equal(np.asarray(d2.states), np.asarray(d1.states))
     v = np.linspace(-1.0, 1.0, 5)
     np.testing.assert_allclose(np.asarray(d2.pdf("v", v, 1.0)), np.asarray(d1.pdf("v", v, 1.0)))
-    print("ok")
+    print("sharded ok")
     """
 )
 
 
-def test_two_host_devices_split_the_paths_with_identical_results():
-    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2", JAX_PLATFORMS="cpu")
-    out = subprocess.run([sys.executable, "-c", _SHARDED], env=env, capture_output=True, text=True, timeout=300)
-    assert out.returncode == 0, out.stderr[-3000:]
-    assert out.stdout.strip().endswith("ok")
-
-
-_CPU_CORES = textwrap.dedent(
-    """
-    import jax, pytest, jdpim
-    from jdpim._cpu import start_devices
-    with pytest.raises(ValueError, match="n must be"):
-        jdpim.use_cpu_cores(0)
-    assert jdpim.use_cpu_cores(3) == 3
-    assert jax.device_count() == 3  # the first computation starts JAX with three CPU devices
-    assert jdpim.use_cpu_cores(3) == 3  # asking again for what runs is fine
-    with pytest.raises(RuntimeError, match="already runs on 3 CPU device"):
-        jdpim.use_cpu_cores(2)
-    assert start_devices(None) == "3 CPU device(s)"  # the command line leaves a started JAX alone
-    with pytest.raises(ValueError, match="already runs on 3"):
-        start_devices(2)
-    print("ok")
-    """
-)
-
-
-def test_use_cpu_cores_splits_the_cpu_before_jax_starts_and_says_when_too_late():
+@pytest.fixture(scope="module")
+def two_cpu_devices():
+    """The output of ``_CPU_CORES`` then ``_SHARDED`` in a fresh process (JAX not started, no device count set)."""
     env = {k: v for k, v in os.environ.items() if k not in ("XLA_FLAGS", "JAX_NUM_CPU_DEVICES")}
-    out = subprocess.run(
-        [sys.executable, "-c", _CPU_CORES],
+    return subprocess.run(
+        [sys.executable, "-c", _CPU_CORES + _SHARDED],
         env=dict(env, JAX_PLATFORMS="cpu"),
         capture_output=True,
         text=True,
         timeout=300,
     )
-    assert out.returncode == 0, out.stderr[-3000:]
-    assert out.stdout.strip().endswith("ok")
+
+
+def test_use_cpu_cores_splits_the_cpu_before_jax_starts_and_says_when_too_late(two_cpu_devices):
+    assert "cores ok" in two_cpu_devices.stdout.splitlines(), two_cpu_devices.stderr[-3000:]
+
+
+def test_two_host_devices_split_the_paths_with_identical_results(two_cpu_devices):
+    assert two_cpu_devices.returncode == 0, two_cpu_devices.stderr[-3000:]
+    assert two_cpu_devices.stdout.splitlines()[-1] == "sharded ok"
 
 
 @pytest.mark.parametrize(

@@ -42,8 +42,9 @@ def test_impact_logic_is_traced_only_with_a_barrier():
 
 @pytest.mark.parametrize("method", ["dpim", "monte_carlo"])
 def test_new_parameter_values_do_not_recompile(method):
-    base = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=0.2, dt=0.05)
-    run = (lambda s: jdpim.dpim(s, n_points=8)) if method == "dpim" else (lambda s: jdpim.monte_carlo(s, n_samples=8))
+    """On the scene and sizes of the methods' examples (their programs, compiled once a session)."""
+    base = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=2.0, dt=0.01)
+    run = (lambda s: jdpim.dpim(s, n_points=64)) if method == "dpim" else (lambda s: jdpim.monte_carlo(s, n_samples=64))
     run(base)
     before = simulate._cache_size()
     for alpha, r, D in [(0.05, 0.9, 0.1), (0.2, 0.5, 0.02)]:

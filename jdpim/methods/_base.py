@@ -56,9 +56,9 @@ def solve(scene: Scene, method: AbstractMethod, *, checkpoint=None):
     Examples:
         >>> import jdpim
         >>> scene = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=2.0, dt=0.01)
-        >>> res = jdpim.solve(scene, jdpim.MonteCarlo(n_samples=32, seed=1))
+        >>> res = jdpim.solve(scene, jdpim.MonteCarlo(n_samples=64, seed=1))
         >>> res.states.shape, res.coordinates
-        ((32, 1, 2), ('x', 'v'))
+        ((64, 1, 2), ('x', 'v'))
     """
     if not isinstance(scene, Scene):
         raise TypeError(f"scene must be a jdpim.Scene, got {type(scene).__name__}")

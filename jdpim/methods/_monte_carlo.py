@@ -32,8 +32,8 @@ class MonteCarlo(SamplingMethod):
     Examples:
         >>> import jdpim
         >>> scene = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=2.0, dt=0.01)
-        >>> jdpim.solve(scene, jdpim.MonteCarlo(n_samples=32, seed=1)).states.shape
-        (32, 1, 2)
+        >>> jdpim.solve(scene, jdpim.MonteCarlo(n_samples=64, seed=1)).states.shape
+        (64, 1, 2)
     """
 
     n_samples: int = static_field(default=10_000)
@@ -68,8 +68,8 @@ def monte_carlo(
     Examples:
         >>> import jdpim
         >>> scene = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=2.0, dt=0.01)
-        >>> jdpim.monte_carlo(scene, n_samples=32, seed=1).states.shape
-        (32, 1, 2)
+        >>> jdpim.monte_carlo(scene, n_samples=64, seed=1).states.shape
+        (64, 1, 2)
     """
     method = MonteCarlo(n_samples, seed, chunk_size=chunk_size, devices=devices, progress=progress)
     return solve(scene, method)

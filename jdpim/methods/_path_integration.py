@@ -106,10 +106,10 @@ class PathIntegration(AbstractMethod):
 
     Examples:
         >>> import jdpim
-        >>> scene = jdpim.Scene(jdpim.VibroImpactOscillator(alpha=0.1, gamma=None, r=1.0),
-        ...                     noise=jdpim.WhiteNoise(D=0.01), t_end=2.0, dt=0.1)
+        >>> scene = jdpim.Scene(jdpim.VibroImpactOscillator(alpha=0.1, gamma=None, barrier=None),
+        ...                     noise=jdpim.WhiteNoise(D=0.05), t_end=1.0, dt=0.02)
         >>> res = jdpim.solve(scene, jdpim.PathIntegration(n_x=61, n_v=121, tau=0.1))
-        >>> round(float(res.mass(t=2.0)), 4)
+        >>> round(float(res.mass(t=1.0)), 4)
         1.0
     """
 

@@ -145,8 +145,8 @@ def first_passage(
 
     Examples:
         >>> import jdpim
-        >>> scene = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=5.0, dt=0.01, save_at=(1.0, 5.0))
-        >>> fp = jdpim.first_passage(scene, "x", [0.1, 0.3], jdpim.MonteCarlo(n_samples=2000, seed=0))
+        >>> scene = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=2.0, dt=0.01, save_at=(1.0, 2.0))
+        >>> fp = jdpim.first_passage(scene, "x", [0.1, 0.2], jdpim.MonteCarlo(n_samples=400, seed=0))
         >>> fp.probability.shape, bool(fp.probability[1, 0] >= fp.probability[0, 0])
         ((2, 2), True)
     """

@@ -75,8 +75,8 @@ def impact_statistics(scene: Scene, method: SamplingMethod, speed_edges=None) ->
 
     Examples:
         >>> import jdpim
-        >>> scene = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=5.0, dt=0.01, save_at=(1.0, 5.0))
-        >>> st = jdpim.impact_statistics(scene, jdpim.MonteCarlo(n_samples=500, seed=0))
+        >>> scene = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=1.0, dt=0.02, save_at=(0.5, 1.0))
+        >>> st = jdpim.impact_statistics(scene, jdpim.MonteCarlo(n_samples=50, seed=0))
         >>> st.probability.shape, bool(st.probability[1] >= st.probability[0])
         ((2,), True)
     """
