@@ -298,7 +298,8 @@ class Scene:
 
     @property
     def float_dtype(self):
-        return jnp.zeros(()).dtype if self.dtype is None else jnp.dtype(self.dtype)
+        # JAX's default float (float64 under jax_enable_x64), found without running a computation
+        return jax.dtypes.canonicalize_dtype(np.float64) if self.dtype is None else jnp.dtype(self.dtype)
 
     def replace(self, **changes) -> Scene:
         """A copy with fields replaced (``scene.replace(model=scene.model.replace(alpha=0.05))``). A ``save_at``
