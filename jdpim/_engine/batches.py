@@ -13,7 +13,8 @@ once, and a step whose crossings fit in one batch runs one. They serve every ste
 A chunk of ``WIDE_CHUNK`` paths or more (an accelerator's; a CPU's where ``default_chunk_size`` makes it so) has a
 wide batch (:func:`wide_first`): up to ``cap`` (``ceil(n / 16)``, :func:`batch_rows`) crossing paths, taken in
 order and gathered column by column, every round on every row; batches of the first pending path of each of
-``cap`` lanes of ``G = 16`` paths (:func:`one_batch`, :func:`batches`) serve the crossings beyond it. On an
+``cap`` lanes of ``G = 16`` paths (:func:`one_batch`, :func:`batches`; on a CPU the same tree, whose first leaf
+takes the paths in order, so that the wide resolution is traced once) serve the crossings beyond it. On an
 accelerator that runs in every step without branches: every branch costs a read of its predicate by the host and
 kernels of its own, which set the cost of a step (docs/speed.md). There the paths at rest on the barrier (one degree
 of freedom) are served with the crossing paths, and their batch restarts them where the force pulls them off. On a
