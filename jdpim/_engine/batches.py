@@ -13,7 +13,8 @@ once, and a step whose crossings fit in one batch runs one. They serve every ste
 A chunk of ``WIDE_CHUNK`` paths or more (an accelerator's; a CPU's where ``default_chunk_size`` makes it so) has a
 wide batch (:func:`wide_first`): up to ``cap`` (``ceil(n / 16)``, :func:`batch_rows`) crossing paths, taken in
 order and gathered column by column, every round on every row; batches of the first pending path of each of
-``cap`` lanes of ``G = 16`` paths (:func:`one_batch`, :func:`batches`) serve the crossings beyond it. On an
+``cap`` lanes of ``G = 16`` paths (:func:`one_batch`, :func:`batches`; on a CPU the same tree, whose first leaf
+takes the paths in order, so that the wide resolution is traced once) serve the crossings beyond it. On an
 accelerator that runs in every step without branches: every branch costs a read of its predicate by the host and
 kernels of its own, which set the cost of a step (docs/speed.md). There the paths at rest on the barrier (one degree
 of freedom) are served with the crossing paths, and their batch restarts them where the force pulls them off. On a
@@ -151,18 +152,29 @@ def resolve_batch(eng: Engine, packing: Packing, rows, wide):
     return jnp.concatenate(b1, axis=1)
 
 
-def one_batch(eng: Engine, packing: Packing, carry, in_order=False):
-    """One wide batch: up to ``batch_rows`` pending paths of ``carry = (columns, end, todo, any pending)`` resolved,
-    their end states scattered into ``end`` and their ``todo`` cleared; taken in order or the first of every lane."""
-    source, end, todo, _ = carry
+def one_batch(eng: Engine, packing: Packing, carry, in_order: bool | None = False):
+    """One wide batch: up to ``batch_rows`` pending paths of ``carry = (columns, end, todo, first, any pending)``
+    resolved, their end states scattered into ``end`` and their ``todo`` cleared; taken in order or the first of
+    every lane (``in_order``; ``None``: in order where ``first`` is true, which it clears)."""
+    source, end, todo, first, _ = carry
     n = packing.n
     cap = batch_rows(n)
-    idx = jnp.nonzero(todo, size=cap, fill_value=n)[0] if in_order else first_in_lanes(todo, cap)
+
+    def ordered(todo):
+        return jnp.nonzero(todo, size=cap, fill_value=n)[0].astype(jnp.int32)
+
+    def by_lanes(todo):
+        return first_in_lanes(todo, cap).astype(jnp.int32)
+
+    if in_order is None:
+        idx = jax.lax.cond(first, ordered, by_lanes, todo)
+    else:
+        idx = ordered(todo) if in_order else by_lanes(todo)
     # the columns themselves: packing them would copy every path in every step
     rows = jnp.concatenate([c.at[idx].get(mode="clip") for c in source], axis=1)
     end = end.at[idx].set(resolve_batch(eng, packing, rows, True), mode="drop")
     todo = todo.at[idx].set(False, mode="drop")
-    return source, end, todo, jnp.any(todo)
+    return source, end, todo, jnp.zeros((), bool), jnp.any(todo)
 
 
 def tree(leaf, carry, depth: int):
@@ -188,9 +200,15 @@ def batches(eng: Engine, packing: Packing, carry):
 
 
 def wide_first(eng: Engine, packing: Packing, columns, end, todo):
-    """The end states with a wide batch of the pending paths in order resolved first, then the rest by lanes."""
-    first = one_batch(eng, packing, (columns, end, todo, True), in_order=True)
-    return batches(eng, packing, first)[1]
+    """The end states with a wide batch of the pending paths in order resolved first, then the rest by lanes.
+
+    Without branches (an accelerator) the first batch runs in every step; with them (a CPU, where some path is
+    pending) it is the first leaf of the lanes' tree, so that the resolution is traced once."""
+    if branch_free(packing.n):
+        first = one_batch(eng, packing, (columns, end, todo, False, True), in_order=True)
+        return batches(eng, packing, first)[1]
+    leaf = functools.partial(one_batch, eng, packing, in_order=None)
+    return tree(leaf, (columns, end, todo, True, True), depth_for(packing.n, batch_rows(packing.n)) + 1)[1]
 
 
 def compact_rows(n: int) -> int:

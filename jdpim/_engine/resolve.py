@@ -26,15 +26,13 @@ def resolve_one(model, rule: ImpactRule, h, y0, tau0, y1, last, e):
     q_plus = dot(onto, qc) + position * unit  # on the plane c_j = 0
     v_plus = dot(keep, vc) + r * jnp.abs(dot(normal, vc)) * push  # generalised Newton law
     q_plus, v_plus = stored(q_plus), stored(v_plus)
-    qr, vr = rk4(model, q_plus, v_plus, e, h, theta, 1.0)
     if rule.stick_velocity > 0 and q0.shape[0] == 1:  # one degree of freedom: rest on the constraint
         rest = jnp.zeros_like(v0)
         pushes_in = dot(normal, model.state_acceleration(q_plus, rest, forcing(e, theta))) <= 0
         stick = (r * jnp.abs(dot(normal, vc)) < rule.stick_velocity) & pushes_in
         tau_d = stored(departure(model, e, theta, normal, q_plus))  # rest at (q_plus, 0) until the force pulls away
-        qd, vd = rk4(model, q_plus, rest, e, h, tau_d, 1.0)
-        qr, vr = jnp.where(stick, qd, qr), jnp.where(stick, vd, vr)
         v_plus, theta = jnp.where(stick, rest, v_plus), jnp.where(stick, tau_d, theta)
+    qr, vr = rk4(model, q_plus, v_plus, e, h, theta, 1.0)  # on from the bounce, or from the departure
     new_y0 = (jnp.where(hit, q_plus, q0), jnp.where(hit, v_plus, v0))
     new_y1 = (jnp.where(hit, qr, q1), jnp.where(hit, vr, v1))
     return new_y0, jnp.where(hit, theta, tau0), new_y1, jnp.where(hit, j, last)
