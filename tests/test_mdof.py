@@ -160,8 +160,8 @@ def test_one_degree_of_freedom_as_mdof_reproduces_the_reference_scene():
 
 
 def damper_scene():
-    """The impact damper (clearance +-0.1, r = 0.5) to t = 5 s, as several tests here and test_stored_values.py run it
-    with :data:`DAMPER_MC` (one compiled program)."""
+    """The impact damper (clearance +-0.1, r = 0.5) to t = 5 s, as tests here and in test_examples_mdof.py run it with
+    :data:`DAMPER_MC` (one compiled program)."""
     return jdpim.Scene(jdpim.impact_damper(), noise=jdpim.WhiteNoise(D=0.01), t_end=5.0, dt=0.01, save_at=(2.5, 5.0))
 
 
