@@ -161,9 +161,9 @@ def test_held_paths_under_filtered_noise_stay_finite_admissible_and_held():
 
 def test_reverse_mode_from_rest_on_a_wall_is_finite_and_equals_forward_mode():
     """Paths of the filtered damper held at rest against a wall from the start (float32, 7 paths, 2 steps; one of
-    them ends its held step a rounding error beyond the wall): ``jax.grad`` of E[x1^2] with respect to
-    ``stiffness[0,0]`` is finite and equal to ``jax.jvp``'s (reverse mode gave nan: the crossing's starting guess
-    carried a derivative that divides by an underflowing square)."""
+    them ends its held step a rounding error beyond the wall): reverse mode (as ``jax.grad`` runs it) of E[x1^2]
+    with respect to ``stiffness[0,0]`` is finite and equal to forward mode's (reverse mode gave nan: the crossing's
+    starting guess carried a derivative that divides by an underflowing square)."""
     model = jdpim.kanai_tajimi(jdpim.impact_damper(), omega_g=3.0, zeta_g=0.6)
     x0 = np.zeros(model.dimension)
     x0[1] = 0.1  # x2 - x1 = c: on the wall
@@ -183,8 +183,12 @@ def test_reverse_mode_from_rest_on_a_wall_is_finite_and_equals_forward_mode():
         return jdpim.solve(s, jdpim.MonteCarlo(n_samples=7, seed=31)).moment("x1", 2, 0.02)
 
     @jax.jit
-    def both(k):  # reverse mode and forward mode in one program (one compilation)
-        return jax.grad(second_moment)(k), jax.jvp(second_moment, (k,), (jnp.ones_like(k),))[1]
+    def both(k):
+        """Reverse mode as ``jax.grad`` runs it (``jax.vjp``: the transpose of the linearisation) and forward mode, from
+        one linearisation: one program with one forward pass through the paths."""
+        _, forward = jax.linearize(second_moment, k)
+        (reverse,) = jax.linear_transpose(forward, k)(jnp.ones((), k.dtype))
+        return reverse, forward(jnp.ones_like(k))
 
     with pytest.warns(jdpim.SensitivityWarning):
         reverse, forward = (float(d) for d in both(k0))

@@ -5,7 +5,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from test_wide_resolution import SCENES
 
 import jdpim
 from jdpim._engine import elementwise, locate, resolve
@@ -32,18 +31,37 @@ def test_stored_passes_derivatives_through():
     np.testing.assert_array_equal(jax.grad(lambda x: jnp.sum(elementwise.stored(x) ** 2))(x), 2 * x)
 
 
-def _one_dof():
-    """Every path crosses in its first step (one degree of freedom, sticking on as by default)."""
-    return jdpim.Scene(
-        jdpim.VibroImpactOscillator(), noise=jdpim.WhiteNoise(D=0.08), t_end=1.0, dt=0.01, x0=1e-3, v0=-1.0
-    )
+# Scenes and methods: every path crossing in its first step (one degree of freedom, sticking on as by default), the
+# impact damper, and the damper held on its walls behind a Kanai-Tajimi filter as test_mdof_sticking.py runs it (same
+# sizes), so that a session compiles that stored program, the one users run, once.
+SCENES = {
+    "one degree of freedom": (
+        lambda: jdpim.Scene(
+            jdpim.VibroImpactOscillator(), noise=jdpim.WhiteNoise(D=0.08), t_end=1.0, dt=0.01, x0=1e-3, v0=-1.0
+        ),
+        jdpim.MonteCarlo(n_samples=32, seed=5),
+    ),
+    "impact damper": (
+        lambda: jdpim.Scene(jdpim.impact_damper(), noise=jdpim.WhiteNoise(D=0.05), t_end=2.0, dt=0.01),
+        jdpim.MonteCarlo(n_samples=32, seed=5),
+    ),
+    "held on the walls": (
+        lambda: jdpim.Scene(
+            jdpim.kanai_tajimi(jdpim.impact_damper(), omega_g=3.0, zeta_g=0.6),
+            noise=jdpim.WhiteNoise(D=0.01),
+            t_end=20.0,
+            dt=0.01,
+            save_at=(10.0, 20.0),
+        ),
+        jdpim.MonteCarlo(n_samples=400, seed=0),
+    ),
+}
 
 
-@pytest.mark.parametrize("name", ["one degree of freedom", "impact damper", "held on the walls"])
+@pytest.mark.parametrize("name", SCENES)
 def test_storing_changes_no_state(name, monkeypatch):
-    """Monte Carlo states (32 paths) with the values stored and with every store left out."""
-    scene = _one_dof() if name == "one degree of freedom" else SCENES[name]()
-    method = jdpim.MonteCarlo(n_samples=32, seed=5)
+    """Monte Carlo states with the values stored and with every store left out."""
+    scene, method = SCENES[name][0](), SCENES[name][1]
     stored = np.asarray(jdpim.solve(scene, method).states)
     for module in (locate, resolve):  # every user of the stored values
         monkeypatch.setattr(module, "stored", lambda x: x)

@@ -51,9 +51,17 @@ SCENES = {
 
 @pytest.fixture(scope="module")
 def lane_states():
-    """The lane resolution's states of each scene, computed once for the module (a scene checked both ways of
-    running the wide resolution compares both with the same lanes)."""
-    return {}
+    """The lane resolution's states of a scene (256 paths in one chunk), computed once for the module: a scene checked
+    both ways of running the wide resolution, or with compact batches of other widths, is compared with the same
+    lanes."""
+    states = {}
+
+    def lanes(name, monkeypatch):
+        if name not in states:
+            states[name] = _states(SCENES[name](), 256, False, monkeypatch)
+        return states[name]
+
+    return lanes
 
 
 @pytest.mark.parametrize(
@@ -62,25 +70,23 @@ def lane_states():
 def test_wide_resolution_gives_the_lane_states(name, branch_free, monkeypatch, lane_states):
     scene = SCENES[name]()
     wide = _states(scene, 256, True, monkeypatch, branch_free)
-    if name not in lane_states:
-        lane_states[name] = _states(scene, 256, False, monkeypatch)
-    lanes = lane_states[name]
+    lanes = lane_states(name, monkeypatch)
     assert np.all(np.isfinite(wide))
     np.testing.assert_allclose(wide, lanes, rtol=0, atol=1e-5)
 
 
 @pytest.mark.parametrize("name", ["all cross at once", "impact damper"])
-def test_compact_batches_give_the_same_states_whatever_their_rows(name, monkeypatch):
-    """A chunk's crossing paths go through compact batches of ``compact_rows`` rows (8 of 512 paths), as many as a
+def test_compact_batches_give_the_same_states_whatever_their_rows(name, monkeypatch, lane_states):
+    """A chunk's crossing paths go through compact batches of ``compact_rows`` rows (4 of 256 paths), as many as a
     step needs (64 in the first step of the first scene, where every path crosses): batches of 16 rows, fewer of
     them, give the same states to rounding, since every row is resolved by the same code whichever batch serves it;
-    XLA vectorises the two widths differently (other fused multiply-adds), so the last bits may differ (measured:
-    7 of 2048 values of the damper differ, by at most 3e-8, one unit in the last place of the states' scale)."""
-    scene = SCENES[name]()
-    eight = _states(scene, 512, False, monkeypatch)
+    XLA vectorises the two widths differently (other fused multiply-adds), so the last bits may differ (a few units
+    in the last place of the states' scale). The default widths' states are the lanes of the test above."""
+    default = lane_states(name, monkeypatch)
+    assert batches.compact_rows(256) == 4
     monkeypatch.setattr(batches, "compact_rows", lambda n: 16)
-    rounding = 8 * np.finfo(eight.dtype).eps * np.max(np.abs(eight))  # a few units of the states' last place
-    np.testing.assert_allclose(_states(scene, 512, False, monkeypatch), eight, rtol=0, atol=rounding)
+    rounding = 8 * np.finfo(default.dtype).eps * np.max(np.abs(default))  # a few units of the states' last place
+    np.testing.assert_allclose(_states(SCENES[name](), 256, False, monkeypatch), default, rtol=0, atol=rounding)
 
 
 def test_reverse_mode_through_the_wide_resolution(monkeypatch):
