@@ -99,13 +99,6 @@ def v_grid():
     return np.linspace(-5.0, 5.0, 801)
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _release_compiled_code():
-    """Drop JAX's compiled executables after each module: the suite's peak memory stays that of one module."""
-    yield
-    jax.clear_caches()
-
-
 @pytest.fixture(scope="session")
 def notebook_runs(request, tmp_path_factory):
     """The notebooks selected for this session, run one after another in a background process.
