@@ -224,7 +224,8 @@ class Scene:
         if x0 is None or any(concrete(leaf) is None for leaf in leaves):
             cons = None  # traced or placeholder leaves (jit, lower): checked where the scene is built
         else:
-            cons = self.model.stacked_constraints()
+            with jax.ensure_compile_time_eval():  # concrete also where the scene is built inside a jit trace
+                cons = self.model.stacked_constraints()
         if x0 is not None and self.x0 is not None:
             check_harmonic_start(self.model, x0)
         if cons is not None:

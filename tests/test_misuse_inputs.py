@@ -8,6 +8,7 @@ that blow up are counted with the non-finite ones.
 import math
 import warnings
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -191,6 +192,15 @@ def test_save_at_left_at_its_default_follows_t_end():
     assert base.replace(t_end=2.0).save_at == (2.0,)
     assert base.replace(t_end=8.0).save_at == (8.0,)
     assert scene(t_end=5.0, save_at=(1.0, 5.0)).replace(t_end=6.0).save_at == (1.0, 5.0)
+
+
+def test_a_constrained_scene_built_inside_jit_checks_its_start():
+    def build(d, x0):
+        return jdpim.Scene(jdpim.impact_damper(), noise=jdpim.WhiteNoise(D=d), x0=x0, t_end=1.0, dt=0.01).t_end
+
+    assert jax.jit(build, static_argnums=1)(0.01, (0.0, 0.0)) == 1.0
+    with pytest.raises(ValueError, match=r"violates constraints\[1\]"):
+        jax.jit(build, static_argnums=1)(0.01, (0.0, 5.0))
 
 
 def test_paths_that_blow_up_are_counted_with_the_non_finite_ones():
