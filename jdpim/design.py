@@ -15,14 +15,18 @@ optax optimiser on them with
   component that points out of an active bound counts as zero (a component that does so by more than two
   standard errors is settled: it asks for no larger sample).
 
-The run stops (``converged``) when no component of the projected gradient is more than two standard errors from
-zero and either every component's sign is settled or the sample is the largest (``max_batches``); or after
-``max_steps`` steps.
+The run stops when no component of the projected gradient is more than two standard errors from zero and either
+every component's sign is settled or the sample is the largest (``max_batches``); or after ``max_steps`` steps.
+Such a stop shows only that no slope larger than two standard errors is there: with ``gradient_tol`` it counts as
+``converged`` only where those two standard errors are within ``gradient_tol``, so that a gradient lost in the
+noise of too small a sample is not taken for a flat one (``converged=False``, and a :class:`DesignWarning` says
+how large a slope the sample could have missed).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from collections.abc import Callable
 
 import numpy as np
@@ -31,6 +35,11 @@ import optax
 from ._pytree import check_int, real_array
 
 Z_STOP = 2.0  # a gradient component within this many standard errors of zero is not distinguished from it
+
+
+class DesignWarning(UserWarning):
+    """:func:`minimise` stopped where the gradient is not distinguished from zero, but its sample could miss a
+    slope larger than ``gradient_tol``."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -43,8 +52,9 @@ class Design:
             batches).
         gradient, gradient_stderr: ``(P,)``, its gradient and their standard errors at ``x``.
         converged: ``True`` when the projected gradient is within two standard errors of zero, at the largest
-            sample (``max_batches``) unless only active bounds stop it; ``False`` when the run stopped after
-            ``max_steps`` steps.
+            sample (``max_batches``) unless only active bounds stop it, and (with ``gradient_tol``) those two
+            standard errors are within ``gradient_tol``; ``False`` when the run stopped after ``max_steps`` steps
+            or on a gradient its sample does not resolve.
         history_x: ``(K, P)``, the designs visited (one row per step, the last is ``x``).
         history_value, history_value_stderr: ``(K,)``, the objective at each.
         batches: ``(K,)``, the number of batches averaged at each.
@@ -128,6 +138,7 @@ def minimise(
     batches: int = 1,
     max_batches: int = 8,
     seed: int = 0,
+    gradient_tol=None,
 ) -> Design:
     """Minimise an estimated objective over a box with optax, common random numbers and growing samples.
 
@@ -146,6 +157,9 @@ def minimise(
         max_batches: the most batches averaged at a design (>= ``batches``): ``max_batches`` times the batch
             size is the largest sample.
         seed: the seed of batch 0; batch ``k`` uses ``seed + k`` at every design (common random numbers).
+        gradient_tol: ``None``, or the largest slope (objective units per unit of ``x``, > 0; a number or ``(P,)``)
+            that may be taken for zero: a stop on a gradient within two standard errors of zero is ``converged``
+            only where two standard errors are within it.
 
     Returns:
         :class:`Design`.
@@ -168,6 +182,12 @@ def minimise(
     batches = check_int("batches", batches, low=1)
     max_batches = check_int("max_batches", max_batches, low=batches)
     seed = check_int("seed", seed, low=0)
+    tol = None
+    if gradient_tol is not None:
+        tol = real_array("gradient_tol", gradient_tol, "a positive number or (P,) of them")
+        if tol.shape not in ((), x.shape) or not np.all(np.isfinite(tol)) or np.any(tol <= 0):
+            raise ValueError(f"gradient_tol must be a positive number or {x.size} of them, got {gradient_tol!r}")
+        tol = np.broadcast_to(tol, x.shape)
 
     p = x.size
     state = optimiser.init(x)
@@ -185,8 +205,21 @@ def minimise(
                 break
             batches = min(2 * batches, max_batches)
         history.append((x.copy(), value, value_se, batches))
-        converged = not descent
-        if converged or step == max_steps:
+        if not descent:
+            # a component that points out of an active bound is settled there; the others resolved within tol
+            missed = np.where((g == 0) & (grad != 0), 0.0, Z_STOP * grad_se)
+            converged = tol is None or bool(np.all(missed <= tol))
+            if not converged:
+                warnings.warn(
+                    f"minimise stopped at x = {x.tolist()} on a gradient within {Z_STOP:g} standard errors of zero "
+                    f"at {batches} batches, but a slope up to {np.max(missed):.3g} could hide "
+                    f"in that noise (gradient_tol = {np.min(tol):.3g}): raise max_batches or the batch size",
+                    DesignWarning,
+                    stacklevel=2,
+                )
+            break
+        if step == max_steps:
+            converged = False
             break
         updates, state = optimiser.update(g, state, x)
         x = np.clip(np.asarray(optax.apply_updates(x, updates), dtype=float), low, high)

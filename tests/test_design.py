@@ -57,6 +57,25 @@ def test_stops_after_max_steps_without_convergence():
     assert not d.converged and d.history_x.shape == (4, 1) and d.n_evaluations == 4
 
 
+def test_a_gradient_lost_in_the_noise_is_not_taken_for_a_flat_one_with_gradient_tol():
+    # a slope of 0.2 (the quadratic at x = 0.4, centre 0.3) with batches of standard error 0.5: 2 batches cannot
+    # tell it from zero; without a tolerance that stop reads as converged, with gradient_tol = 0.1 it does not
+    def objective(x, seed):  # estimates whose errors happen to be zero: the stop is deterministic
+        return float((x[0] - 0.3) ** 2), 0.5, [2 * (x[0] - 0.3)], [0.5]
+
+    args = (objective, [0.4], [(0.0, 1.0)], optax.sgd(0.1))
+    plain = jdpim.design.minimise(*args, max_batches=2)
+    assert plain.converged and plain.history_x.shape == (1, 1)
+    with pytest.warns(jdpim.design.DesignWarning, match="a slope up to 0.707 could hide"):
+        strict = jdpim.design.minimise(*args, max_batches=2, gradient_tol=0.1)
+    assert not strict.converged and strict.history_x.shape == (1, 1)
+    # resolved to within the tolerance: converged, without a warning
+    d = jdpim.design.minimise(
+        noisy_quadratic(0.3), [0.9], [(0.0, 1.0)], optax.sgd(0.3), max_steps=60, max_batches=16, gradient_tol=0.05
+    )
+    assert d.converged and 2 * d.gradient_stderr[0] <= 0.05
+
+
 @pytest.mark.parametrize(
     "kwargs, error, match",
     [
@@ -72,6 +91,8 @@ def test_stops_after_max_steps_without_convergence():
         ({"objective": lambda x, s: (0.0, 0.1, [0.0, 0.0], [0.1, 0.1])}, ValueError, "gradient and its stderrs of 1"),
         ({"objective": lambda x, s: (np.nan, 0.1, [0.0], [0.1])}, ValueError, "non-finite"),
         ({"objective": lambda x, s: 0.0}, ValueError, "must return"),
+        ({"gradient_tol": 0.0}, ValueError, "gradient_tol must be a positive number or 1"),
+        ({"gradient_tol": [0.1, 0.1]}, ValueError, "gradient_tol must be a positive number or 1"),
     ],
 )
 def test_refuses_bad_inputs(kwargs, error, match):
