@@ -125,14 +125,16 @@ def test_derivatives_take_the_likelihood_ratio_for_drift_and_differences_for_res
 def test_estimators_that_do_not_apply_are_refused_in_one_line(passage):
     with pytest.raises(ValueError, match="LikelihoodRatio applies to drift parameters only, not 'r'"):
         jdpim.first_passage(PASSAGE_SCENE, "x", 0.4, PASSAGE_MC, wrt="r", estimator=jdpim.LikelihoodRatio())
-    # these two are refused once the paths are run: Pathwise runs the program of the passage fixture (no scores),
-    # the window a barrier-free scene's (quick to compile)
+    # refused when the question is asked, before any path runs
     with pytest.raises(ValueError, match="Pathwise does not estimate first-passage derivatives"):
         jdpim.first_passage(PASSAGE_SCENE, "x", LEVELS, PASSAGE_MC, wrt="alpha", estimator=jdpim.Pathwise())
-    free = jdpim.Scene(REF.replace(barrier=None), noise=jdpim.WhiteNoise(D=0.03), t_end=0.1, dt=0.01)
     with pytest.raises(ValueError, match="whole history"):
         jdpim.first_passage(
-            free, "x", 0.4, jdpim.MonteCarlo(n_samples=10), wrt="alpha", estimator=jdpim.LikelihoodRatio(window=5.0)
+            PASSAGE_SCENE, "x", 0.4, PASSAGE_MC, wrt="alpha", estimator=jdpim.LikelihoodRatio(window=5.0)
+        )
+    with pytest.raises(ValueError, match="whole history"):
+        jdpim.first_passage(
+            PASSAGE_SCENE, "x", 0.4, jdpim.SubsetSimulation(), wrt="alpha", estimator=jdpim.LikelihoodRatio(window=5.0)
         )
 
 

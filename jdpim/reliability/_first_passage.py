@@ -88,6 +88,7 @@ def _derivatives(scene: Scene, wrt, estimator) -> tuple:
             except ValueError:
                 pass
         est.check(scene, name)
+        est.check_first_passage()  # before any path runs
         estimators[name] = est
     return tuple(values), values, estimators
 

@@ -118,11 +118,6 @@ def _estimators(query) -> dict:
             if query.values["D"] <= 0.0:
                 raise ValueError(f"D must be > 0 to differentiate with respect to it, got {query.values['D']!r}")
             est = "noise"
-        elif isinstance(est, LikelihoodRatio) and est.window is not None:
-            raise ValueError(
-                f"first passage depends on the whole history: LikelihoodRatio(window={est.window!r}) does not "
-                "apply; leave window=None"
-            )
         elif not isinstance(est, (LikelihoodRatio, CentralDifference)):
             raise ValueError(
                 f"SubsetSimulation estimates derivatives by jdpim.LikelihoodRatio() or jdpim.CentralDifference(), "

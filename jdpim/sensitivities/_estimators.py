@@ -61,13 +61,20 @@ class AbstractEstimator:
         """``{parameter: LikelihoodRatio}``: score sums to accumulate along the paths, with their settings."""
         return {}
 
-    def first_passage(self, ctx, name: str):
-        """``(N, S, L)`` per-path contributions to ``dP/dtheta`` of first-passage probabilities
-        (``ctx``: ``reliability._sampled.PassageContext``)."""
+    def check_first_passage(self) -> None:
+        """Raise ``ValueError`` unless the estimator gives first-passage derivatives: checked when the question is
+        asked, before any path runs."""
         raise ValueError(
             f"{type(self).__name__} does not estimate first-passage derivatives; use jdpim.LikelihoodRatio() "
             "(drift parameters) or jdpim.CentralDifference()"
         )
+
+    def first_passage(self, ctx, name: str):
+        """``(N, S, L)`` per-path contributions to ``dP/dtheta`` of first-passage probabilities
+        (``ctx``: ``reliability._sampled.PassageContext``); an estimator that gives them overrides this and
+        :meth:`check_first_passage`."""
+        self.check_first_passage()
+        raise NotImplementedError(f"{type(self).__name__}.first_passage")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -127,12 +134,15 @@ class LikelihoodRatio(AbstractEstimator):
         """``c_i = (1_i - P) (S_i - Sbar)``: the centred passage indicator times the centred score of the whole
         history. Its mean is that of ``1_i (S_i - Sbar)`` (the scores' mean is zero); its spread is the sample
         covariance's, whose variance ``1_i (S_i - Sbar)`` overstates by about ``1 / (1 - P)``."""
+        return (ctx.passed - ctx.probability[None]) * ctx.scores[name][..., None]
+
+    def check_first_passage(self) -> None:
+        """First passage depends on the whole history: a windowed score does not apply."""
         if self.window is not None:
             raise ValueError(
                 f"first passage depends on the whole history: LikelihoodRatio(window={self.window!r}) does not "
                 "apply; leave window=None"
             )
-        return (ctx.passed - ctx.probability[None]) * ctx.scores[name][..., None]
 
     def estimate(self, ctx, name: str):
         """``c_i = K(y, Y_i) (S_i - Sbar)`` with the centred score of ``name``."""
@@ -211,6 +221,9 @@ class CentralDifference(AbstractEstimator):
             return (ctx.kern(xb, vb) - ctx.kern(xa, va)) / (hi - lo)
 
         return ctx.moments(contribution, (a[:, 0], a[:, 1], b[:, 0], b[:, 1]), w)
+
+    def check_first_passage(self) -> None:
+        """Central differences give the derivative of every first-passage probability."""
 
     def first_passage(self, ctx, name: str):
         """``c_i = (1_i(hi) - 1_i(lo)) / (hi - lo)`` over the common paths rerun at both ends."""
