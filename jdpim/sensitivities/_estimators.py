@@ -62,19 +62,18 @@ class AbstractEstimator:
         return {}
 
     def check_first_passage(self) -> None:
-        """Raise ``ValueError`` unless the estimator gives first-passage derivatives: checked when the question is
-        asked, before any path runs."""
+        """Raise ``ValueError`` unless the estimator gives first-passage derivatives (overrides
+        :meth:`first_passage`): checked when the question is asked, before any path runs."""
+        if type(self).first_passage is AbstractEstimator.first_passage:
+            self.first_passage(None, "")
+
+    def first_passage(self, ctx, name: str):
+        """``(N, S, L)`` per-path contributions to ``dP/dtheta`` of first-passage probabilities
+        (``ctx``: ``reliability._sampled.PassageContext``)."""
         raise ValueError(
             f"{type(self).__name__} does not estimate first-passage derivatives; use jdpim.LikelihoodRatio() "
             "(drift parameters) or jdpim.CentralDifference()"
         )
-
-    def first_passage(self, ctx, name: str):
-        """``(N, S, L)`` per-path contributions to ``dP/dtheta`` of first-passage probabilities
-        (``ctx``: ``reliability._sampled.PassageContext``); an estimator that gives them overrides this and
-        :meth:`check_first_passage`."""
-        self.check_first_passage()
-        raise NotImplementedError(f"{type(self).__name__}.first_passage")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -221,9 +220,6 @@ class CentralDifference(AbstractEstimator):
             return (ctx.kern(xb, vb) - ctx.kern(xa, va)) / (hi - lo)
 
         return ctx.moments(contribution, (a[:, 0], a[:, 1], b[:, 0], b[:, 1]), w)
-
-    def check_first_passage(self) -> None:
-        """Central differences give the derivative of every first-passage probability."""
 
     def first_passage(self, ctx, name: str):
         """``c_i = (1_i(hi) - 1_i(lo)) / (hi - lo)`` over the common paths rerun at both ends."""
