@@ -5,11 +5,13 @@ from __future__ import annotations
 
 import abc
 import dataclasses
+import functools
 import itertools
 from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from ._constraints import dot, geometry, values
 from ._engine.elementwise import pick
@@ -24,17 +26,48 @@ from ._excitation import AbstractNodes, ArrayNodes
 class Tracker(abc.ABC):
     """A per-path quantity carried along every step and stored at the save slots like the states.
 
-    Hashable (it is a static argument of the jitted integration). ``init(model, q, v, e)`` gives its value at
+    A frozen dataclass, and a pytree (every subclass is registered, :func:`_flatten`): its fields that hold arrays
+    (``jax.Array`` or NumPy) are traced leaves of the jitted integration, so that a new value reuses the compiled
+    program; its other fields (functions, numbers, settings) are structure, hashed into the jit cache.
+    ``init(model, q, v, e)`` gives its value at
     the start (``e``: zero forcing nodes), ``update(model, acc, q, v, q_new, v_new, e, h)`` its value after a
     step of length ``h`` from ``(q, v)`` to ``(q_new, v_new)`` (each ``(d,)``, one path) under the forcing
     ``e``, the nodes at the step's start, middle and end (each ``(m,)``); both return shape ``(k,)``.
     """
+
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        jax.tree_util.register_pytree_node(cls, _flatten, functools.partial(_unflatten, cls))
 
     @abc.abstractmethod
     def init(self, model, q, v, e): ...
 
     @abc.abstractmethod
     def update(self, model, acc, q, v, q_new, v_new, e, h): ...
+
+
+def _holds_arrays(value) -> bool:
+    return any(isinstance(leaf, (jax.Array, np.ndarray)) for leaf in jax.tree_util.tree_leaves(value))
+
+
+def _flatten(tracker):
+    """A tracker's fields that hold arrays (children, traced) and the others (structure, with the names of the
+    traced ones). A tracker rebuilt under a transformation keeps the split it was flattened with."""
+    fields = [f.name for f in dataclasses.fields(tracker)]
+    traced = getattr(tracker, "_traced_fields", None)
+    if traced is None:
+        traced = tuple(name for name in fields if _holds_arrays(getattr(tracker, name)))
+    static = tuple((name, getattr(tracker, name)) for name in fields if name not in traced)
+    return tuple(getattr(tracker, name) for name in traced), (traced, static)
+
+
+def _unflatten(cls, aux, children):
+    traced, static = aux
+    tracker = object.__new__(cls)  # no __init__: the children may be tracers or placeholders
+    for name, value in (*zip(traced, children, strict=True), *static):
+        object.__setattr__(tracker, name, value)
+    object.__setattr__(tracker, "_traced_fields", traced)
+    return tracker
 
 
 def increment(e, h):

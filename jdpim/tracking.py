@@ -47,11 +47,12 @@ class RunningMaximum(_integrate.RunningMax, AbstractTracked):
     """The largest value of ``quantity(state) -> scalar`` (``state``: ``(2 d,)``) over the start and the end of
     every step so far, and whether the state has been non-finite or diverged: ``(2,)`` (first passage).
 
-    With ``bound`` (``(2 d,)`` floats, :func:`jdpim.methods._paths.divergence_bound`), a state beyond it counts as
+    With ``bound`` (``(2 d,)``, :func:`jdpim.methods._paths.divergence_bound`), a state beyond it counts as
     diverged, as densities count it: like a non-finite state it is left out of the maximum, and the path is marked
-    from then on, so that it has passed a level only if it did so before it diverged."""
+    from then on, so that it has passed a level only if it did so before it diverged. Given as an array, the bound
+    is traced: runs with other bounds (other noise intensities) reuse the compiled program."""
 
-    bound: tuple | None = None
+    bound: Any = None
 
     def _value(self, q, v):
         value, bad = super()._value(q, v)

@@ -5,6 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from scipy.stats import norm
+from test_first_solve import compiled_programs
 
 import jdpim
 
@@ -173,6 +174,16 @@ def test_a_path_that_passes_before_it_diverges_counts_as_passed():
     np.testing.assert_allclose(p[1, 0], p[0, 0], atol=1e-6)  # the passed paths stay passed after they diverge
     np.testing.assert_allclose(p[1] + lost[1], [1.0, 1.0], atol=1e-5)  # by t = 60 every path has diverged
     np.testing.assert_array_equal(p[:, 1], [0.0, 0.0])
+
+
+def test_another_noise_intensity_compiles_nothing(passage):
+    """The divergence bound, which the noise intensity sets, is traced data of the running maximum, and the
+    probabilities are one program per shape: a run at another ``D`` (a fragility curve's next point) compiles
+    nothing."""
+    with compiled_programs() as names:
+        other = jdpim.first_passage(PASSAGE_SCENE.replace(noise=jdpim.WhiteNoise(D=0.05)), "x", LEVELS, PASSAGE_MC)
+    assert names == []
+    assert np.sum(other.probability) > np.sum(passage.probability)  # more noise, more passes: a real run
 
 
 def test_the_result_passes_through_jit(passage):

@@ -1,5 +1,6 @@
 """What a first solve compiles: the run's program and a few small ones, never one per operation."""
 
+import contextlib
 import logging
 import re
 
@@ -28,22 +29,29 @@ class _Compiles(logging.Handler):
             self.names.append(found.group(1))
 
 
-def test_a_first_solve_compiles_a_few_programs():
-    """A solve of a size not seen before, its density and its moment compile the run and at most
-    ``FIRST_SOLVE_PROGRAMS`` others (fewer where earlier tests compiled the shared ones): operation-by-operation
-    evaluation would compile dozens."""
-    scene = jdpim.Scene(jdpim.VibroImpactOscillator(), noise=jdpim.WhiteNoise(D=0.03), t_end=0.2, dt=0.01)
+@contextlib.contextmanager
+def compiled_programs():
+    """The names of the programs XLA compiles inside the ``with`` block (a list, filled as they compile)."""
     logger, handler = logging.getLogger("jax"), _Compiles()
     level = logger.level
     logger.addHandler(handler)
     logger.setLevel(logging.DEBUG)
     try:
-        res = jdpim.solve(scene, jdpim.MonteCarlo(n_samples=13, seed=0))
-        jax.block_until_ready((res.pdf("x", [0.1, 0.5]), res.moment("x", 2)))
+        yield handler.names
     finally:
         logger.removeHandler(handler)
         logger.setLevel(level)
-    others = [name for name in handler.names if name != "jit(simulate)"]
+
+
+def test_a_first_solve_compiles_a_few_programs():
+    """A solve of a size not seen before, its density and its moment compile the run and at most
+    ``FIRST_SOLVE_PROGRAMS`` others (fewer where earlier tests compiled the shared ones): operation-by-operation
+    evaluation would compile dozens."""
+    scene = jdpim.Scene(jdpim.VibroImpactOscillator(), noise=jdpim.WhiteNoise(D=0.03), t_end=0.2, dt=0.01)
+    with compiled_programs() as names:
+        res = jdpim.solve(scene, jdpim.MonteCarlo(n_samples=13, seed=0))
+        jax.block_until_ready((res.pdf("x", [0.1, 0.5]), res.moment("x", 2)))
+    others = [name for name in names if name != "jit(simulate)"]
     assert len(others) <= FIRST_SOLVE_PROGRAMS, others
 
 

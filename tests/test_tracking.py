@@ -2,7 +2,9 @@
 DPIM; the built-ins agree with the saved states; first passage holds a diverged path's maximum."""
 
 import dataclasses
+from typing import Any
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -73,6 +75,33 @@ def test_the_running_maximum_leaves_out_states_beyond_the_divergence_bound():
         np.testing.assert_array_equal(np.asarray(acc), expected)
     free = RunningMaximum(lambda s: s[0])
     assert free.update(None, acc, None, None, jnp.array([50.0]), jnp.array([1.0]), zero, 0.01)[0] == 50.0
+
+
+@dataclasses.dataclass(frozen=True)
+class StepsAbove(AbstractTracked):
+    """Steps that end with the velocity above ``level``: a field given as an array is traced data."""
+
+    level: Any
+
+    def init(self, model, q, v, e):
+        return jnp.zeros(1, q.dtype)
+
+    def update(self, model, acc, q, v, q_new, v_new, e, h):
+        return acc + (v_new > self.level).astype(acc.dtype)
+
+
+def test_array_fields_of_a_statistic_are_traced_and_the_rest_is_structure():
+    """A statistic is a pytree: its array fields are leaves (a new value reuses the compiled run), its functions
+    and numbers structure (a new one compiles anew)."""
+    low, high = StepsAbove(np.asarray(0.1)), StepsAbove(jnp.asarray(0.2))
+    assert jax.tree_util.tree_structure(low) == jax.tree_util.tree_structure(high)
+    assert jax.tree_util.tree_leaves(high) == [high.level]
+    assert jax.tree_util.tree_leaves(StepsAbove(0.1)) == []
+    bounded, free = RunningMaximum(energy, np.ones(2)), RunningMaximum(energy)
+    assert jax.tree_util.tree_leaves(free) == [] and len(jax.tree_util.tree_leaves(bounded)) == 1
+    doubled = jax.tree_util.tree_map(lambda a: 2 * a, bounded)
+    assert isinstance(doubled, RunningMaximum) and doubled.quantity is energy
+    np.testing.assert_array_equal(doubled.bound, [2.0, 2.0])
 
 
 @dataclasses.dataclass(frozen=True)

@@ -302,19 +302,17 @@ def _simulate(scene: Scene, rows, *, kind: str, chunk_size: int, track=None):
     return jax.tree_util.tree_map(lambda a: a.reshape(-1, *a.shape[2:])[:n], out)
 
 
-@functools.partial(jax.jit, static_argnames=("kind", "chunk_size", "track"))
+@functools.partial(jax.jit, static_argnames=("kind", "chunk_size"))
 def simulate(scene: Scene, rows, *, kind: str, chunk_size: int, track=None):
     """Saved states ``(N, S, 2)`` for input ``rows`` (``(N, d)`` DPIM points or ``(N, 2)`` MC key data).
 
-    With ``track`` (a :class:`jdpim._integrate.Tracker`) the pair ``(states, tracked)``.
+    With ``track`` (a :class:`jdpim._integrate.Tracker`, a pytree: its array fields traced, the rest structure)
+    the pair ``(states, tracked)``.
 
     Jitted; differentiable with respect to every traced leaf of ``scene``. One device, one call; see
     :func:`run_paths` for sharding over devices and streaming in blocks.
     """
     return _simulate(scene, rows, kind=kind, chunk_size=chunk_size, track=track)
-
-
-_jitted_simulate = jax.jit(_simulate, static_argnames=("kind", "chunk_size", "track"))
 
 
 def is_traced(tree) -> bool:
@@ -350,14 +348,17 @@ def home_device(devices):
 
 
 @functools.lru_cache(maxsize=32)
-def _sharded_simulate(kind: str, chunk_size: int, devices: tuple, track=None):
-    """``simulate`` with the path axis split over ``devices`` (one shard of whole chunks per device)."""
+def _sharded_simulate(kind: str, chunk_size: int, devices: tuple, tracked: bool = False):
+    """``simulate`` with the path axis split over ``devices`` (one shard of whole chunks per device): a jitted
+    ``(scene, rows) -> states``, or with ``tracked`` ``(scene, rows, track) -> (states, tracked)``."""
     mesh = jax.sharding.Mesh(np.asarray(devices), ("paths",))
-    spec = jax.sharding.PartitionSpec("paths")
-    local = functools.partial(_simulate, kind=kind, chunk_size=chunk_size, track=track)
-    body = jax.shard_map(
-        local, mesh=mesh, in_specs=(jax.sharding.PartitionSpec(), spec), out_specs=spec, check_vma=False
-    )
+    spec, whole = jax.sharding.PartitionSpec("paths"), jax.sharding.PartitionSpec()
+
+    def local(scene, rows, *track):
+        return _simulate(scene, rows, kind=kind, chunk_size=chunk_size, track=track[0] if tracked else None)
+
+    specs = (whole, spec, whole) if tracked else (whole, spec)
+    body = jax.shard_map(local, mesh=mesh, in_specs=specs, out_specs=spec, check_vma=False)
     return jax.jit(body), jax.sharding.NamedSharding(mesh, spec)
 
 
@@ -475,8 +476,8 @@ def _run_local(scene: Scene, rows, *, kind, chunk_size, block_size, devices, pro
         run = functools.partial(simulate, kind=kind, chunk_size=chunk_size, track=track)
         sharding = jax.sharding.SingleDeviceSharding(devices[0])
     else:
-        fn, sharding = _sharded_simulate(kind, chunk_size, devices, track)
-        run = fn
+        fn, sharding = _sharded_simulate(kind, chunk_size, devices, track is not None)
+        run = fn if track is None else lambda scene, rows: fn(scene, rows, track)
     bar = _Progress(n, label or kind, n_blocks > 1 if progress is None else bool(progress))
     pad = n_blocks * block - n
     rows = pad_rows(rows, pad)

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Callable
 from typing import Any
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -118,14 +120,22 @@ class FirstPassage(Labelled):
 
     @classmethod
     def from_tracked(cls, times, levels, tracked, weights, method: str, *, stderr: bool) -> FirstPassage:
-        """From :class:`jdpim.tracking.RunningMaximum` values ``(N, S, 2)`` of ``N`` paths with probabilities
-        ``weights`` ``(N,)``: a path has passed a level once its running maximum exceeds it (also if its state
-        turned non-finite or diverged afterwards); a non-finite or diverged path that has not is lost."""
-        maxima, bad = tracked[..., 0], tracked[..., 1] > 0
-        hit = cls.passed(tracked, levels)
-        # over the total weight summed the same way: float32 rounding of a sum of many weights (1e-4 at 2e4
-        # paths) then cancels, and a level every path passes gives exactly 1
-        p = jnp.einsum("n,nsl->sl", weights, hit) / jnp.einsum("n,nsl->sl", weights, jnp.ones_like(hit))
-        se = jnp.sqrt(jnp.einsum("n,nsl->sl", weights * weights, (hit - p[None]) ** 2)) if stderr else None
-        lost = jnp.einsum("n,nsl->sl", weights, (1.0 - hit) * bad[..., None])
-        return cls(times, jnp.asarray(levels, maxima.dtype), p, se, lost, method)
+        """From :class:`jdpim.tracking.RunningMaximum` values ``(N, S, 2)`` (or more columns, the first two read) of
+        ``N`` paths with probabilities ``weights`` ``(N,)``: a path has passed a level once its running maximum
+        exceeds it (also if its state turned non-finite or diverged afterwards); a non-finite or diverged path that
+        has not is lost. One compiled program per shape (:func:`_passage_statistics`)."""
+        levels, p, se, lost = _passage_statistics(levels, tracked, weights, stderr)
+        return cls(times, levels, p, se, lost, method)
+
+
+@functools.partial(jax.jit, static_argnums=(3,))
+def _passage_statistics(levels, tracked, weights, stderr: bool):
+    """``(levels, probability, stderr or None, lost mass)`` of :meth:`FirstPassage.from_tracked`."""
+    maxima, bad = tracked[..., 0], tracked[..., 1] > 0
+    hit = FirstPassage.passed(tracked, levels)
+    # over the total weight summed the same way: float32 rounding of a sum of many weights (1e-4 at 2e4
+    # paths) then cancels, and a level every path passes gives exactly 1
+    p = jnp.einsum("n,nsl->sl", weights, hit) / jnp.einsum("n,nsl->sl", weights, jnp.ones_like(hit))
+    se = jnp.sqrt(jnp.einsum("n,nsl->sl", weights * weights, (hit - p[None]) ** 2)) if stderr else None
+    lost = jnp.einsum("n,nsl->sl", weights, (1.0 - hit) * bad[..., None])
+    return jnp.asarray(levels, maxima.dtype), p, se, lost

@@ -42,7 +42,7 @@ def sampled_first_passage(method, scene: Scene, query) -> FirstPassage:
     for name in query.wrt:
         settings.update(query.estimators[name].scores_needed(name, scene))
     bound = divergence_bound(scene)  # the nominal scene's, for every run: the same rule for common paths
-    running = RunningMaximum(query.quantity, None if bound is None else tuple(float(b) for b in bound))
+    running = RunningMaximum(query.quantity, bound)  # the bound an array: one compiled program for every value
     track = Stacked((running, Sums(Score(tuple(settings), scene.dt)))) if settings else running
 
     def tracked(scene):
@@ -50,7 +50,7 @@ def sampled_first_passage(method, scene: Scene, query) -> FirstPassage:
 
     nominal = watch(tracked(scene), INDICATOR)
     sampled = method.independent  # independent samples: a sampling standard error
-    out = FirstPassage.from_tracked(scene.save_at, query.levels, nominal[..., :2], weights, method.name, stderr=sampled)
+    out = FirstPassage.from_tracked(scene.save_at, query.levels, nominal, weights, method.name, stderr=sampled)
     if not query.wrt:
         return out
     passed = FirstPassage.passed(nominal, query.levels)
