@@ -8,6 +8,7 @@ import dataclasses
 import functools
 import itertools
 from collections.abc import Callable
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -129,7 +130,7 @@ class Impacts(Tracker):
     """
 
     rule: ImpactRule
-    edges: tuple  # bin edges of the impact speed, increasing
+    edges: Any  # bin edges of the impact speed, increasing: an array (traced), or () for none
 
     def init(self, model, q, v, e):
         return jnp.zeros((2 + max(len(self.edges) - 1, 0),), q.dtype)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import jdpim
-from jdpim.tracking import AbstractTracked, Function, Integral, RunningMaximum, track
+from jdpim.tracking import AbstractTracked, Function, ImpactCounts, Integral, RunningMaximum, track
 
 # saved at every step, so that the states show what a statistic sees at the start and the end of every step
 SCENE = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=0.5, dt=0.01, save_at=tuple(np.arange(51) * 0.01))
@@ -102,6 +102,10 @@ def test_array_fields_of_a_statistic_are_traced_and_the_rest_is_structure():
     doubled = jax.tree_util.tree_map(lambda a: 2 * a, bounded)
     assert isinstance(doubled, RunningMaximum) and doubled.quantity is energy
     np.testing.assert_array_equal(doubled.bound, [2.0, 2.0])
+    counts = ImpactCounts(SCENE.impacts, np.linspace(0.0, 1.0, 5))  # impact statistics' speed bins: traced edges
+    assert jax.tree_util.tree_structure(counts) == jax.tree_util.tree_structure(
+        dataclasses.replace(counts, edges=np.linspace(0.0, 2.0, 5))
+    )
 
 
 @dataclasses.dataclass(frozen=True)

@@ -92,7 +92,8 @@ def impact_statistics(scene: Scene, method: SamplingMethod, speed_edges=None) ->
     if edges is None:
         raise ValueError("speed_edges must be concrete numbers, not traced")
     rows, weights, chunk = method.inputs(scene)
-    _, tracked = method.paths(scene, rows, chunk, track=ImpactCounts(scene.impacts, tuple(float(e) for e in edges)))
+    counts = ImpactCounts(scene.impacts, np.asarray(edges, float) if len(edges) else ())  # edges traced, count static
+    _, tracked = method.paths(scene, rows, chunk, track=counts)
     tracked = watch(tracked, INDICATOR)  # counts and indicators: no pathwise derivative
     p, p_se = weighted_mean(weights, tracked[..., 0], method.independent)
     count, count_se = weighted_mean(weights, tracked[..., 1], method.independent)
