@@ -55,6 +55,18 @@ def test_a_first_solve_compiles_a_few_programs():
     assert len(others) <= FIRST_SOLVE_PROGRAMS, others
 
 
+def test_a_new_number_of_chunks_compiles_no_new_run():
+    """Chunks run one by one through one program per chunk size: 26 and 39 paths in chunks of 13 compile at most
+    one run (none after the first solve above); tests/test_pipelines.py checks that the states do not depend on the
+    chunking."""
+    scene = jdpim.Scene(jdpim.VibroImpactOscillator(), noise=jdpim.WhiteNoise(D=0.03), t_end=0.2, dt=0.01)
+    with compiled_programs() as names:
+        two = jdpim.solve(scene, jdpim.MonteCarlo(n_samples=26, seed=0, chunk_size=13))
+        three = jdpim.solve(scene, jdpim.MonteCarlo(n_samples=39, seed=0, chunk_size=13))
+    assert names.count("jit(simulate)") <= 1, names
+    assert two.states.shape == (26, 1, 2) and three.states.shape == (39, 1, 2)
+
+
 def test_moment_order_is_an_integer():
     """``Result.moment`` checks its order as ``GridResult.moment`` does."""
     res = jdpim.Result((1.0,), np.zeros((3, 1, 2), np.float32), np.full(3, 1 / 3, np.float32), 0.0)

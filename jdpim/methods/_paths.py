@@ -460,6 +460,18 @@ def _across_processes(scene: Scene, rows, local, devices):
     return jax.tree_util.tree_map(lambda a: jax.device_put(np.asarray(a)[:n], _devices(devices)[0]), gathered)
 
 
+def _chunk_by_chunk(scene: Scene, rows, *, kind, chunk_size, track, device):
+    """:func:`simulate` of ``rows`` (whole chunks) on one device, called once per chunk: one compiled program per
+    chunk size, whatever the number of chunks (each chunk is a pure function of its rows: the states are those of
+    one call over every chunk)."""
+    one = functools.partial(simulate, kind=kind, chunk_size=chunk_size, track=track)
+    if rows.shape[0] == chunk_size:
+        return one(scene, rows)
+    host = np.asarray(rows)
+    parts = [one(scene, jax.device_put(host[i : i + chunk_size], device)) for i in range(0, len(host), chunk_size)]
+    return jax.tree_util.tree_map(lambda *a: jax.device_put(np.concatenate(a), device), *parts)
+
+
 def _run_local(scene: Scene, rows, *, kind, chunk_size, block_size, devices, progress, label, track, checkpoint):
     """:func:`run_paths` on this process's devices."""
     devices = _devices(devices)
@@ -473,7 +485,7 @@ def _run_local(scene: Scene, rows, *, kind, chunk_size, block_size, devices, pro
     block = -(-per_block // unit) * unit  # whole chunks on every device
     n_blocks = -(-n // block)
     if len(devices) == 1:
-        run = functools.partial(simulate, kind=kind, chunk_size=chunk_size, track=track)
+        run = functools.partial(_chunk_by_chunk, kind=kind, chunk_size=chunk_size, track=track, device=devices[0])
         sharding = jax.sharding.SingleDeviceSharding(devices[0])
     else:
         fn, sharding = _sharded_simulate(kind, chunk_size, devices, track is not None)
