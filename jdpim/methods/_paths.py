@@ -11,6 +11,7 @@ streamed in blocks of chunks from a host loop, and the path axis is sharded over
 from __future__ import annotations
 
 import abc
+import copy
 import functools
 import sys
 import time
@@ -257,7 +258,11 @@ def shared_scene(scene: Scene) -> Scene:
     layout of ``S`` saved times, which then comes as data (:func:`save_layout`)."""
     k = len(scene.save_at)
     canonical = tuple(float(s) * scene.dt for s in range(scene.n_steps - k + 1, scene.n_steps + 1))
-    return scene if scene.save_at == canonical else scene.replace(save_at=canonical)
+    if scene.save_at == canonical:
+        return scene
+    shared = copy.copy(scene)  # times on the grid, as the scene's checks would store them: no checks again (ms)
+    object.__setattr__(shared, "save_at", canonical)
+    return shared
 
 
 def integrate_forcing(scene: Scene, excitation, rand, track=None, layout=None):
