@@ -11,6 +11,7 @@ streamed in blocks of chunks from a host loop, and the path axis is sharded over
 from __future__ import annotations
 
 import abc
+import copy
 import functools
 import sys
 import time
@@ -234,17 +235,42 @@ def path_forcing(scene: Scene, kind: str, rows):
     return excitation.from_keys(scene, k_noise), rand
 
 
-def _simulate_chunk(scene: Scene, kind: str, rows, track=None):
+def _simulate_chunk(scene: Scene, kind: str, rows, track=None, layout=None):
     """States ``(n, S, 2 d)`` of one chunk of paths (and the values of ``track`` at the saved times: ``integrate``)."""
-    return integrate_forcing(scene, *path_forcing(scene, kind, rows), track)
+    return integrate_forcing(scene, *path_forcing(scene, kind, rows), track, layout)
 
 
-def integrate_forcing(scene: Scene, excitation, rand, track=None):
+def save_layout(scene: Scene):
+    """``(slots, initial)``: the save slot written after each step, ``(T,)`` int32 (``S`` for none, ``S`` saved
+    times), and the slot of ``t = 0`` (``S`` if it is not saved), as NumPy arrays."""
+    n_save = len(scene.save_steps)
+    slots = np.full(scene.n_steps, n_save, dtype=np.int32)  # slot written after step k (time k + 1)
+    after = [(s - 1, i) for i, s in enumerate(scene.save_steps) if s > 0]
+    if after:
+        steps, idx = zip(*after, strict=True)
+        slots[list(steps)] = idx
+    initial = scene.save_steps.index(0) if 0 in scene.save_steps else n_save
+    return slots, np.int32(initial)
+
+
+def shared_scene(scene: Scene) -> Scene:
+    """``scene`` with its saved times replaced by the last ``S`` steps of its grid: the one compiled program of every
+    layout of ``S`` saved times, which then comes as data (:func:`save_layout`)."""
+    k = len(scene.save_at)
+    canonical = tuple(float(s) * scene.dt for s in range(scene.n_steps - k + 1, scene.n_steps + 1))
+    if scene.save_at == canonical:
+        return scene
+    shared = copy.copy(scene)  # times on the grid, as the scene's checks would store them: no checks again (ms)
+    object.__setattr__(shared, "save_at", canonical)
+    return shared
+
+
+def integrate_forcing(scene: Scene, excitation, rand, track=None, layout=None):
     """States ``(n, S, 2 d)`` of ``n`` paths under a given forcing (and ``track``'s values, see ``integrate``).
 
     ``excitation``: the unit-envelope forcing at the nodes (:class:`jdpim._excitation.AbstractNodes`), which the
     noise's envelope (if any) multiplies here; ``rand``: the random parameters ``(n, n_random)`` in the order of
-    ``scene.random``.
+    ``scene.random``; ``layout``: the saved times' :func:`save_layout` as arrays (``None``: the scene's, as constants).
     """
     dtype = scene.float_dtype
     excitation = modulate(excitation, scene.noise.envelope, scene.dt)
@@ -263,14 +289,7 @@ def integrate_forcing(scene: Scene, excitation, rand, track=None):
     x_start, v_start = scene.initial_state()
     x0 = rand[:, names.index("x0"), None] if "x0" in names else jnp.broadcast_to(jnp.asarray(x_start, dtype), shape)
     v0 = rand[:, names.index("v0"), None] if "v0" in names else jnp.broadcast_to(jnp.asarray(v_start, dtype), shape)
-    save_steps = scene.save_steps
-    slot_of = {s: i for i, s in enumerate(save_steps)}
-    n_save = len(save_steps)
-    slots = np.full(scene.n_steps, n_save, dtype=np.int32)  # slot written after step k (time k + 1)
-    after = [(s - 1, i) for i, s in enumerate(save_steps) if s > 0]
-    if after:
-        steps, idx = zip(*after, strict=True)
-        slots[list(steps)] = idx
+    slots, initial = save_layout(scene) if layout is None else layout
     return integrate(
         path_model,
         scene.impacts,
@@ -280,8 +299,8 @@ def integrate_forcing(scene: Scene, excitation, rand, track=None):
         excitation,
         rand.astype(dtype),
         jnp.asarray(slots),
-        n_save,
-        slot_of.get(0, n_save),
+        len(scene.save_at),
+        initial if layout is not None else int(initial),
         scene.substeps,
         track,
     )
@@ -292,27 +311,28 @@ def pad_rows(rows, pad: int):
     return jnp.concatenate([rows, jnp.repeat(rows[:1], pad, axis=0)]) if pad else rows
 
 
-def _simulate(scene: Scene, rows, *, kind: str, chunk_size: int, track=None):
+def _simulate(scene: Scene, rows, layout=None, *, kind: str, chunk_size: int, track=None):
     SamplingMethod.named(kind)  # an unknown kind fails here, in one line
     n = rows.shape[0]
     pad = (-n) % chunk_size
     padded = pad_rows(rows, pad)
     chunks = padded.reshape(-1, chunk_size, *rows.shape[1:])
-    out = jax.lax.map(functools.partial(_simulate_chunk, scene, kind, track=track), chunks)
+    out = jax.lax.map(functools.partial(_simulate_chunk, scene, kind, track=track, layout=layout), chunks)
     return jax.tree_util.tree_map(lambda a: a.reshape(-1, *a.shape[2:])[:n], out)
 
 
 @functools.partial(jax.jit, static_argnames=("kind", "chunk_size"))
-def simulate(scene: Scene, rows, *, kind: str, chunk_size: int, track=None):
+def simulate(scene: Scene, rows, layout=None, *, kind: str, chunk_size: int, track=None):
     """Saved states ``(N, S, 2)`` for input ``rows`` (``(N, d)`` DPIM points or ``(N, 2)`` MC key data).
 
     With ``track`` (a :class:`jdpim._integrate.Tracker`, a pytree: its array fields traced, the rest structure)
-    the pair ``(states, tracked)``.
+    the pair ``(states, tracked)``. ``layout``: the saved times as data (:func:`save_layout`), for a scene whose own
+    saved times are then only their count (:func:`shared_scene`); ``None``: the scene's saved times.
 
     Jitted; differentiable with respect to every traced leaf of ``scene``. One device, one call; see
     :func:`run_paths` for sharding over devices and streaming in blocks.
     """
-    return _simulate(scene, rows, kind=kind, chunk_size=chunk_size, track=track)
+    return _simulate(scene, rows, layout, kind=kind, chunk_size=chunk_size, track=track)
 
 
 def is_traced(tree) -> bool:
@@ -460,11 +480,11 @@ def _across_processes(scene: Scene, rows, local, devices):
     return jax.tree_util.tree_map(lambda a: jax.device_put(np.asarray(a)[:n], _devices(devices)[0]), gathered)
 
 
-def _chunk_by_chunk(scene: Scene, rows, *, kind, chunk_size, track, device):
+def _chunk_by_chunk(scene: Scene, rows, *, layout, kind, chunk_size, track, device):
     """:func:`simulate` of ``rows`` (whole chunks) on one device, called once per chunk: one compiled program per
     chunk size, whatever the number of chunks (each chunk is a pure function of its rows: the states are those of
     one call over every chunk)."""
-    one = functools.partial(simulate, kind=kind, chunk_size=chunk_size, track=track)
+    one = functools.partial(simulate, layout=layout, kind=kind, chunk_size=chunk_size, track=track)
     if rows.shape[0] == chunk_size:
         return one(scene, rows)
     host = np.asarray(rows)
@@ -484,8 +504,12 @@ def _run_local(scene: Scene, rows, *, kind, chunk_size, block_size, devices, pro
     per_block = -(-n // -(-n // block))  # the paths split equally over the fewest blocks of at most `block`
     block = -(-per_block // unit) * unit  # whole chunks on every device
     n_blocks = -(-n // block)
-    if len(devices) == 1:
-        run = functools.partial(_chunk_by_chunk, kind=kind, chunk_size=chunk_size, track=track, device=devices[0])
+    if len(devices) == 1:  # one program for every layout of as many saved times: the times come as data
+        layout = save_layout(scene)
+        run = functools.partial(
+            _chunk_by_chunk, layout=layout, kind=kind, chunk_size=chunk_size, track=track, device=devices[0]
+        )
+        scene = shared_scene(scene)
         sharding = jax.sharding.SingleDeviceSharding(devices[0])
     else:
         fn, sharding = _sharded_simulate(kind, chunk_size, devices, track is not None)
