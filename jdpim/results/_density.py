@@ -39,7 +39,8 @@ def _clean(samples, weights):
 
 
 def weighted_quantile(samples, weights, q):
-    """Quantile ``q`` of the weighted sample (linear interpolation of mid-weight positions)."""
+    """Quantile ``q`` (a scalar or an array of them) of the weighted sample (linear interpolation of mid-weight
+    positions)."""
     order = jnp.argsort(samples)
     s, w = samples[order], weights[order]
     cw = (jnp.cumsum(w) - 0.5 * w) / jnp.sum(w)
@@ -88,7 +89,8 @@ def _rule_bandwidth(samples, weights, factor, exponent, use_std):
     wn = weights / jnp.sum(weights)
     mean = jnp.sum(wn * samples)
     std = jnp.sqrt(jnp.sum(wn * (samples - mean) ** 2))
-    iqr = weighted_quantile(samples, weights, 0.75) - weighted_quantile(samples, weights, 0.25)
+    upper, lower = weighted_quantile(samples, weights, jnp.array([0.75, 0.25], samples.dtype))  # one sort
+    iqr = upper - lower
     spread = jnp.where(iqr > 0, jnp.minimum(std, iqr / 1.34), std)  # IQR 0: over half the mass at one value
     n = effective_size(weights)
     return factor * jnp.where(use_std, std, spread) * n**exponent
