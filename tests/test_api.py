@@ -1,9 +1,12 @@
 """One shape for every method: ``solve(scene, method)``, method objects, and the result interface they share."""
 
+import logging
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from test_first_solve import _Compiles
 
 import jdpim
 
@@ -79,6 +82,38 @@ def test_the_grid_density_smoothed_as_the_sampling_methods_smooth(results):
     kernel = np.exp(-0.5 * ((grid[:, None] - nodes[None, :]) / 0.1) ** 2) / (0.1 * np.sqrt(2 * np.pi))
     direct = kernel @ (np.asarray(ref.x_weights) * fine)
     np.testing.assert_allclose(ref.pdf("x", grid, bandwidth=0.1), direct, rtol=1e-4)
+
+
+def _compiled(questions) -> list:
+    """Names of the programs XLA compiles while ``questions()`` runs."""
+    logger, handler = logging.getLogger("jax"), _Compiles()
+    level = logger.level
+    logger.addHandler(handler)
+    logger.setLevel(logging.DEBUG)
+    try:
+        jax.block_until_ready(questions())
+    finally:
+        logger.removeHandler(handler)
+        logger.setLevel(level)
+    return handler.names
+
+
+def test_a_grid_question_is_one_compiled_program(results):
+    """Each question to a grid result compiles one program (never one per operation), and the same questions at
+    other values of the same shapes (grid, bandwidth, saved time) compile nothing."""
+    res, grid = results["path_integration"], np.linspace(-0.7, 0.7, 6)
+
+    def questions(shift, h):
+        return (
+            res.pdf("x", grid + shift),
+            res.joint_pdf(("v", "x"), (grid[:3], grid + shift), bandwidth=(h, 2 * h)),
+            res.moment("v", 3),
+            res.nodal_marginal("x"),
+        )
+
+    first = _compiled(lambda: questions(0.0, 0.1))
+    assert sorted(first) == ["jit(_joint_pdf_at)", "jit(_marginal)", "jit(_moment_at)", "jit(_pdf_at)"], first
+    assert _compiled(lambda: questions(0.05, 0.2)) == []
 
 
 def test_t_is_required_where_a_result_holds_several_times(scene):

@@ -1,8 +1,12 @@
 """Weighted kernel densities: normalisation, reflection at the barrier, bandwidth rules."""
 
+import logging
+
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from test_first_solve import _Compiles
 
 import jdpim
 
@@ -104,3 +108,22 @@ def test_density_arguments_are_validated(call, match):
     y, w = jnp.ones(4), jnp.full(4, 0.25)
     with pytest.raises(ValueError, match=match):
         call(y, w)
+
+
+def test_every_bandwidth_rule_and_a_histogram_are_one_program_each():
+    """The three bandwidth rules in one and two dimensions share one compiled program per shape and dtype, and a
+    histogram is one program (not a dozen single operations); asked again they compile nothing."""
+    y = np.linspace(-1.0, 1.0, 37, dtype=np.float32) ** 3
+    w = np.full(37, 1 / 37, np.float32)
+    logger, handler = logging.getLogger("jax"), _Compiles()
+    level = logger.level
+    logger.addHandler(handler)
+    logger.setLevel(logging.DEBUG)
+    try:
+        for edges in (np.linspace(-1.0, 1.0, 6), np.linspace(-0.5, 0.5, 6)):
+            h = [jdpim.bandwidth(y, w, rule, dim=dim) for rule in ("chen", "silverman", "scott") for dim in (1, 2)]
+            jax.block_until_ready((h, jdpim.histogram(y, w, edges)))
+    finally:
+        logger.removeHandler(handler)
+        logger.setLevel(level)
+    assert sorted(handler.names) == ["jit(_histogram)", "jit(_rule_bandwidth)"], handler.names

@@ -13,7 +13,6 @@ smeared into it (see ``Result.lost_mass``).
 
 from __future__ import annotations
 
-import functools
 import math
 
 import jax
@@ -40,7 +39,8 @@ def _clean(samples, weights):
 
 
 def weighted_quantile(samples, weights, q):
-    """Quantile ``q`` of the weighted sample (linear interpolation of mid-weight positions)."""
+    """Quantile ``q`` (a scalar or an array of them) of the weighted sample (linear interpolation of mid-weight
+    positions)."""
     order = jnp.argsort(samples)
     s, w = samples[order], weights[order]
     cw = (jnp.cumsum(w) - 0.5 * w) / jnp.sum(w)
@@ -73,25 +73,27 @@ def bandwidth(samples, weights, rule: str = "chen", *, dim: int = 1, c: float | 
     """
     if rule not in RULES:
         raise ValueError(f"rule must be one of {RULES}, got {rule!r}")
-    c = CHEN_C if c is None else c
-    return _rule_bandwidth(samples, weights, c, rule, dim)
+    if rule == "chen":
+        factor, exponent = (CHEN_C if c is None else c), -1.0 / (4 + dim)
+    else:
+        factor = {"silverman": 0.9, "scott": 1.06}[rule] if dim == 1 else 1.0
+        exponent = -0.2 if dim == 1 else -1.0 / 6
+    return _rule_bandwidth(*map(program_input, (samples, weights)), factor, exponent, rule == "scott")
 
 
-@functools.partial(jax.jit, static_argnums=(3, 4))
-def _rule_bandwidth(samples, weights, c, rule: str, dim: int):
-    """:func:`bandwidth` as one compiled program per rule, dimension, shape and dtype."""
+@jax.jit
+def _rule_bandwidth(samples, weights, factor, exponent, use_std):
+    """``factor * spread * n^exponent`` (``std`` in place of ``spread`` where ``use_std``): :func:`bandwidth` as one
+    compiled program for every rule and dimension, per shape and dtype."""
     samples, weights = _clean(samples, weights)
     wn = weights / jnp.sum(weights)
     mean = jnp.sum(wn * samples)
     std = jnp.sqrt(jnp.sum(wn * (samples - mean) ** 2))
-    iqr = weighted_quantile(samples, weights, 0.75) - weighted_quantile(samples, weights, 0.25)
+    upper, lower = weighted_quantile(samples, weights, jnp.array([0.75, 0.25], samples.dtype))  # one sort
+    iqr = upper - lower
     spread = jnp.where(iqr > 0, jnp.minimum(std, iqr / 1.34), std)  # IQR 0: over half the mass at one value
     n = effective_size(weights)
-    if rule == "chen":
-        return c * spread * n ** (-1.0 / (4 + dim))
-    if rule == "silverman":
-        return (0.9 * spread * n ** (-0.2)) if dim == 1 else spread * n ** (-1.0 / 6)
-    return (1.06 * std * n ** (-0.2)) if dim == 1 else std * n ** (-1.0 / 6)
+    return factor * jnp.where(use_std, std, spread) * n**exponent
 
 
 def limits(barrier=None, bounds=None, name: str = "bounds") -> tuple:
@@ -334,6 +336,11 @@ def histogram(samples, weights, edges):
     Mass outside the edges (or on non-finite paths) is not renormalised into the bins.
     """
     check_grid("edges", edges)
+    return _histogram(*map(program_input, (samples, weights, edges)))
+
+
+@jax.jit
+def _histogram(samples, weights, edges):
     total = jnp.sum(weights)
     samples, weights = _clean(samples, weights)
     counts, _ = jnp.histogram(samples, bins=edges, weights=weights)

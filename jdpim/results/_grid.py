@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 from typing import Any
 
 import jax
@@ -14,6 +15,14 @@ from .._stencils import catmull_rom, lagrange
 from . import _density
 from ._base import COORDINATES, AbstractResult
 from ._samples import _pair
+
+
+def _program(*static: str):
+    """The method as one compiled program per value of its ``static`` arguments and per shapes and dtypes of the
+    others (the result itself traced): a question compiles once, and the same question again, at another saved
+    time, grid or bandwidth of the same shapes, compiles nothing. The public methods check their arguments and
+    turn a saved time into its index before they call one."""
+    return functools.partial(jax.jit, static_argnames=static)
 
 
 @pytree_dataclass
@@ -82,7 +91,11 @@ class GridResult(AbstractResult):
 
     def joint(self, t: float | None = None):
         """Nodal joint density at ``t``, shape ``(n_x, n_v)``."""
-        return self.density[self._index(t)]
+        return self._joint_at(self._index(t))
+
+    @_program()
+    def _joint_at(self, index):
+        return self.density[index]
 
     def _axis(self, var: str):
         """Nodes and quadrature weights of the coordinate ``var``."""
@@ -90,9 +103,10 @@ class GridResult(AbstractResult):
             raise ValueError(f"{var!r} must be a coordinate name {self.coordinates} here, not a function of the state")
         return (self.x, self.x_weights) if var == "x" else (self.v, self.v_weights)
 
-    def _node_masses(self, t):
-        """Probability of every node at ``t`` (density times the quadrature weights), shape ``(n_x, n_v)``."""
-        return self.joint(t) * self.x_weights[:, None] * self.v_weights[None, :]
+    def _node_masses(self, index):
+        """Probability of every node at saved time ``index`` (density times the quadrature weights), shape
+        ``(n_x, n_v)``."""
+        return self.density[index] * self.x_weights[:, None] * self.v_weights[None, :]
 
     def _node_values(self, var):
         """``var`` (a coordinate or a function of the state) on every node, shape ``(n_x, n_v)``."""
@@ -109,8 +123,14 @@ class GridResult(AbstractResult):
         return (self.x[0] if var == "x" and self.has_barrier else None), None
 
     def _limits(self, var, bounds):
-        """The kernel's ``(lower, upper)`` for ``var``: ``bounds`` (checked) or :meth:`bounds`."""
-        return self.bounds(var) if bounds is None else _density.limits(None, bounds)
+        """``bounds`` checked, as the kernel's ``(lower, upper)``; ``None`` (``var`` checked) for :meth:`bounds`, which
+        the compiled question takes (:meth:`_kernel_limits`)."""
+        self._coordinate(var)
+        return None if bounds is None else _density.limits(None, bounds)
+
+    def _kernel_limits(self, var, lim):
+        """The kernel's ``(lower, upper)`` for ``var``: ``lim`` from :meth:`_limits`, or :meth:`bounds`."""
+        return self.bounds(var) if lim is None else lim
 
     def atoms(self, var, t: float | None = None, *, bounds=None):
         """Probability held at the bounds of ``var`` at ``t``: ``[0, 0]``, a grid density holds no point mass."""
@@ -121,7 +141,11 @@ class GridResult(AbstractResult):
     def nodal_marginal(self, var: str, t: float | None = None):
         """Marginal density of ``var`` on its grid nodes (the solver's quadrature over the other variable)."""
         self._axis(var)
-        p = self.joint(t)
+        return self._marginal(var, self._index(t))
+
+    @_program("var")
+    def _marginal(self, var: str, index):
+        p = self.density[index]
         return p @ self.v_weights if var == "x" else self.x_weights @ p
 
     def _interpolate(self, values, var: str, points):
@@ -155,20 +179,33 @@ class GridResult(AbstractResult):
             bounds: ``(a, b)``, the range of ``var`` at whose ends kernels are reflected (``None``: :meth:`bounds`,
                 the barrier for ``"x"``); for kernel densities (a ``bandwidth``, or a function of the state).
         """
+        return self._pdf_at(var, self._index(t), *self._pdf_arguments(var, grid, bandwidth, rule, bounds))
+
+    def _pdf_arguments(self, var, grid, bandwidth, rule, bounds):
+        """The checked ``(grid, bandwidth, rule, lim)`` of :meth:`pdf` for :meth:`_pdf_at`."""
         check_points("grid", grid)
         _check_rule(rule)
         lim = self._limits(var, bounds)
+        if bandwidth is not None:
+            bandwidth = _checked(bandwidth)
+        elif not callable(self._coordinate(var)):
+            _interpolated(var, bounds)
+        return _density.program_input(grid), bandwidth, rule, lim
+
+    @_program("var", "rule")
+    def _pdf_at(self, var, index, grid, bandwidth, rule: str, lim):
+        """:meth:`pdf` at saved time ``index`` (checked arguments)."""
+        lim = self._kernel_limits(var, lim)
         if callable(self._coordinate(var)):
-            y, w = self._node_values(var).ravel(), self._node_masses(t).ravel()
-            sigma = _density.bandwidth(y, w, rule, dim=1) if bandwidth is None else _checked(bandwidth)
+            y, w = self._node_values(var).ravel(), self._node_masses(index).ravel()
+            sigma = _density.bandwidth(y, w, rule, dim=1) if bandwidth is None else bandwidth
             return _density.kde(y, w, jnp.asarray(grid, y.dtype), sigma, bounds=lim)
         if bandwidth is not None:
             nodes, weights = self._axis(var)
             g = jnp.atleast_1d(jnp.asarray(grid, nodes.dtype))
-            k = _density.kernel_matrix(g, nodes, _checked(bandwidth), *lim)
-            return jnp.reshape(k @ (weights * self.nodal_marginal(var, t)), jnp.shape(grid))
-        _interpolated(var, bounds)
-        out = self._interpolate(self.nodal_marginal(var, t), var, grid)
+            k = _density.kernel_matrix(g, nodes, bandwidth, *lim)
+            return jnp.reshape(k @ (weights * self._marginal(var, index)), jnp.shape(grid))
+        out = self._interpolate(self._marginal(var, index), var, grid)
         return jnp.reshape(out, jnp.shape(grid))
 
     def joint_pdf(self, vars, grids, t: float | None = None, *, bandwidth=None, rule: str = "chen", bounds=None):
@@ -185,55 +222,73 @@ class GridResult(AbstractResult):
             check_points(name, g)
         _check_rule(rule)
         ba, bb = (None, None) if bounds is None else _pair("bounds", bounds)
-        lim_a, lim_b = self._limits(va, ba), self._limits(vb, bb)
-        if bandwidth is not None and (np.ndim(bandwidth) != 1 or len(bandwidth) != 2):
-            raise ValueError(f"bandwidth must be None or a pair (sigma_1, sigma_2), got {plain(bandwidth)!r}")
+        lims = self._limits(va, ba), self._limits(vb, bb)
+        if bandwidth is not None:
+            if np.ndim(bandwidth) != 1 or len(bandwidth) != 2:
+                raise ValueError(f"bandwidth must be None or a pair (sigma_1, sigma_2), got {plain(bandwidth)!r}")
+            bandwidth = tuple(_checked(h) for h in bandwidth)
+        if not (callable(self._coordinate(va)) or callable(self._coordinate(vb))):
+            if sorted((va, vb)) != ["v", "x"]:
+                raise ValueError(
+                    f"vars of a grid result's joint density must be ('x', 'v'), ('v', 'x') or hold a function of the "
+                    f"state, got {vars!r}"
+                )
+            if bandwidth is None:
+                _interpolated(vars, bounds)
+        grids = _density.program_input(ga), _density.program_input(gb)
+        return self._joint_pdf_at((va, vb), self._index(t), grids, bandwidth, rule, lims)
+
+    @_program("vars", "rule")
+    def _joint_pdf_at(self, vars, index, grids, bandwidth, rule: str, lims):
+        """:meth:`joint_pdf` at saved time ``index`` (checked arguments; ``bandwidth`` ``None`` or a pair)."""
+        (va, vb), (ga, gb) = vars, grids
+        lim_a, lim_b = (self._kernel_limits(var, lim) for var, lim in zip(vars, lims, strict=True))
         if callable(self._coordinate(va)) or callable(self._coordinate(vb)):
-            w = self._node_masses(t).ravel()
+            w = self._node_masses(index).ravel()
             a, b = self._node_values(va).ravel(), self._node_values(vb).ravel()
             if bandwidth is None:
                 sa, sb = _density.bandwidth(a, w, rule, dim=2), _density.bandwidth(b, w, rule, dim=2)
             else:
-                sa, sb = (_checked(h) for h in bandwidth)
+                sa, sb = bandwidth
             ga, gb = jnp.asarray(ga, a.dtype), jnp.asarray(gb, a.dtype)
             return _density.kde_2d(a, b, w, ga, gb, sa, sb, x_bounds=lim_a, v_bounds=lim_b)
-        if sorted((va, vb)) != ["v", "x"]:
-            raise ValueError(
-                f"vars of a grid result's joint density must be ('x', 'v'), ('v', 'x') or hold a function of the "
-                f"state, got {vars!r}"
-            )
         if va == "v":
-            out = self.joint_pdf(
-                ("x", "v"),
-                (gb, ga),
-                t,
-                bandwidth=None if bandwidth is None else bandwidth[::-1],
-                bounds=None if bounds is None else (bb, ba),
-            )
+            swapped = None if bandwidth is None else bandwidth[::-1]
+            out = self._joint_pdf_at(("x", "v"), index, (gb, ga), swapped, rule, lims[::-1])
             return jnp.swapaxes(out, 0, -1) if jnp.ndim(out) == 2 else out
         if bandwidth is not None:
             dtype = self.x.dtype
-            kx = _density.kernel_matrix(jnp.atleast_1d(jnp.asarray(ga, dtype)), self.x, _checked(bandwidth[0]), *lim_a)
-            kv = _density.kernel_matrix(jnp.atleast_1d(jnp.asarray(gb, dtype)), self.v, _checked(bandwidth[1]), *lim_b)
-            out = kx @ self._node_masses(t) @ kv.T
+            kx = _density.kernel_matrix(jnp.atleast_1d(jnp.asarray(ga, dtype)), self.x, bandwidth[0], *lim_a)
+            kv = _density.kernel_matrix(jnp.atleast_1d(jnp.asarray(gb, dtype)), self.v, bandwidth[1], *lim_b)
+            out = kx @ self._node_masses(index) @ kv.T
         else:
-            _interpolated(vars, bounds)
-            px = self._interpolate(self.joint(t), "x", ga)  # (Gx, n_v)
+            px = self._interpolate(self.density[index], "x", ga)  # (Gx, n_v)
             out = self._interpolate(px.T, "v", gb).T  # (Gx, Gv)
         return jnp.reshape(out, jnp.shape(ga) + jnp.shape(gb))
 
     def moment(self, var, order: int, t: float | None = None):
         """Raw moment ``E[var^order]`` at ``t`` (the solver's quadrature on the nodes)."""
         check_int("order", order, low=0)
+        if not callable(self._coordinate(var)):
+            self._axis(var)
+        return self._moment_at(var, order, self._index(t))
+
+    @_program("var", "order")
+    def _moment_at(self, var, order: int, index):
         if callable(self._coordinate(var)):
-            return jnp.sum(self._node_masses(t) * self._node_values(var) ** order)
+            return jnp.sum(self._node_masses(index) * self._node_values(var) ** order)
         nodes, weights = self._axis(var)
-        return jnp.sum(weights * self.nodal_marginal(var, t) * nodes**order)
+        return jnp.sum(weights * self._marginal(var, index) * nodes**order)
 
     def mass(self, t: float | None = None):
         """Total probability on the grid at ``t`` (1 up to rounding: densities are renormalised)."""
-        return jnp.sum(self.x_weights * self.nodal_marginal("x", t))
+        return self._mass_at(self._index(t))
 
+    @_program()
+    def _mass_at(self, index):
+        return jnp.sum(self.x_weights * self._marginal("x", index))
+
+    @_program()
     def n_nonfinite(self):
         """Number of non-finite values among the result's carriers of probability (here grid nodes) per saved
         time; shape ``(S,)``. Path integration renormalises every step, so one non-finite node spoils the step."""
@@ -254,19 +309,28 @@ class GridResult(AbstractResult):
         For a scheme that converges at first order or faster in the spacings and the step, this bounds the
         error of the fine grid (asymptotically); ``docs/path_integration.md`` measures how far it covers it.
         """
-        coarse = self._coarse()
+        self._coarse()
+        return self._pdf_error_at(var, self._index(t), *self._pdf_arguments(var, grid, bandwidth, rule, bounds))
+
+    @_program("var", "rule")
+    def _pdf_error_at(self, var, index, grid, bandwidth, rule: str, lim):
         if bandwidth is None and callable(self._coordinate(var)):
-            _check_rule(rule)
-            w = self._node_masses(t).ravel()
+            w = self._node_masses(index).ravel()
             bandwidth = _density.bandwidth(self._node_values(var).ravel(), w, rule, dim=1)
-        kw = {"bandwidth": bandwidth, "rule": rule, "bounds": bounds}
-        return jnp.abs(self.pdf(var, grid, t, **kw) - coarse.pdf(var, grid, t, **kw))
+        fine = self._pdf_at(var, index, grid, bandwidth, rule, lim)
+        return jnp.abs(fine - self.coarse._pdf_at(var, index, grid, bandwidth, rule, lim))
 
     def l1_error(self, var: str, t: float | None = None):
         """Estimated L1 error of the marginal of ``var``: ``int |p - p_coarse|`` over the fine grid's nodes."""
+        self._axis(var)
+        self._coarse()
+        return self._l1_error_at(var, self._index(t))
+
+    @_program("var")
+    def _l1_error_at(self, var: str, index):
         nodes, weights = self._axis(var)
-        coarse = self._coarse().pdf(var, nodes, t)
-        return jnp.sum(weights * jnp.abs(self.nodal_marginal(var, t) - coarse))
+        coarse = self.coarse._pdf_at(var, index, nodes, None, "chen", None)
+        return jnp.sum(weights * jnp.abs(self._marginal(var, index) - coarse))
 
 
 def _check_rule(rule):
