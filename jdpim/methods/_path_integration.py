@@ -660,7 +660,7 @@ def _run(scene: Scene, settings: PathIntegration) -> GridResult:
     settings, extents = resolved(scene, settings)
     check_resolution(scene, settings, extents, point_start=initial is None and not stationary)
     res = _solve(scene, settings, extents, stationary, initial)
-    _report(res, settings)
+    report(res, settings)
     if settings.estimate_error:
         coarse = _solve(scene, coarser(scene, settings, stationary, initial), extents, stationary, initial)
         res = dataclasses.replace(res, coarse=jax.lax.stop_gradient(coarse))
@@ -730,7 +730,8 @@ def check_resolution(scene: Scene, settings: PathIntegration, extents, point_sta
 VIRIAL_TOL = 1e-2  # measured: velocity marginal within 1.5 % of 2e4-path MCS where the defect was 1.3 % (r = 0.3)
 
 
-def _report(res: GridResult, settings: PathIntegration) -> None:
+def report(res: GridResult, settings: PathIntegration) -> None:
+    """Warn (``PathIntegrationWarning``) about what a solved ``res`` shows: leaks, defects, unsolved or unbalanced."""
     leak, defect = concrete(res.edge_mass), concrete(res.mass_defect)
     if leak is None or defect is None:
         return  # traced: nothing to inspect here
