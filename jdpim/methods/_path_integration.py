@@ -408,15 +408,34 @@ def peak_weight(scene: Scene, tau: float) -> float:
 
 
 def saved_scan(body, carry, steps, xs=None):
-    """The carries of ``lax.scan(body, carry)`` after each of ``steps`` (increasing counts of steps), a list;
-    ``xs`` (leading axis: at least ``max(steps)``): the per-step inputs, ``None`` for none."""
-    outs, done = [], 0
-    for k in steps:
-        if k > done:
-            carry, _ = jax.lax.scan(body, carry, None if xs is None else xs[done:k], length=k - done)
-            done = k
-        outs.append(carry)
-    return outs
+    """The carries of ``lax.scan(body, carry)`` after each of ``steps`` (counts of steps), a list; ``xs``
+    (leading axis: at least ``max(steps)``): the per-step inputs, ``None`` for none.
+
+    One scan over ``max(steps)`` steps that writes its carry into a buffer row after each saved count: the
+    program holds one copy of the step, however many times are saved.
+    """
+    counts = sorted({k for k in steps if k > 0})
+    if not counts:
+        return [carry for _ in steps]
+    n = counts[-1]
+    slot = np.zeros(n, np.int32)  # after step i + 1: the buffer row it is saved to (if saved)
+    saved = np.zeros(n, bool)
+    for row, k in enumerate(counts):
+        slot[k - 1], saved[k - 1] = row, True
+    slot = np.maximum.accumulate(slot)  # unsaved steps point at the row written last (rewritten unchanged)
+    rows = jax.tree.map(lambda c: jnp.zeros((len(counts), *jnp.shape(c)), jnp.result_type(c)), carry)
+
+    def step(state, inputs):
+        c, buffer = state
+        x, keep, row = inputs
+        c, _ = body(c, x)
+        buffer = jax.tree.map(lambda b, v: b.at[row].set(jnp.where(keep, v, b[row])), buffer, c)
+        return (c, buffer), None
+
+    xs = None if xs is None else jax.tree.map(lambda z: z[:n], xs)
+    (_, rows), _ = jax.lax.scan(step, (carry, rows), (xs, jnp.asarray(saved), jnp.asarray(slot)), length=n)
+    at = {k: row for row, k in enumerate(counts)}
+    return [carry if k <= 0 else jax.tree.map(lambda b, r=at[k]: b[r], rows) for k in steps]
 
 
 @functools.partial(jax.jit, static_argnames=("settings", "extents", "initial"))
