@@ -242,3 +242,22 @@ def test_reports_draw_a_stationary_density_at_every_saved_time(stationary32):
     arrays = report.densities({"ref": res}, (10.0, 30.0), {"x": grid}, {("x", "v"): (grid, grid)}, (30.0,))
     assert arrays["ref_pdf_x"].shape == (2, 5) and arrays["ref_joint"].shape == (1, 5, 5)
     np.testing.assert_array_equal(arrays["ref_pdf_x"][0], np.asarray(res.pdf("x", grid)))
+
+
+def test_saved_times_share_one_scan():
+    """``saved_scan`` runs one scan however many times are saved (one copy of the step in the program), and gives
+    the carries after each count (a repeated count, and count 0: the start)."""
+    from jdpim.methods._path_integration import saved_scan
+
+    def body(c, x):
+        return (c[0] * 1.5 + x, c[1] + 1), None
+
+    xs = jnp.arange(9.0)
+    steps = [0, 2, 5, 5, 9]
+    jaxpr = jax.make_jaxpr(lambda c, xs: saved_scan(body, c, steps, xs))((jnp.ones(()), jnp.zeros((), int)), xs)
+    assert [e.primitive.name for e in jaxpr.eqns].count("scan") == 1
+    outs = saved_scan(body, (jnp.ones(()), jnp.zeros((), int)), steps, xs)
+    after = [(1.0, 0)]  # the carry after k steps, k = 0 .. 9
+    for x in np.arange(9.0):
+        after.append((after[-1][0] * 1.5 + x, after[-1][1] + 1))
+    assert [(float(a), int(b)) for a, b in outs] == [after[k] for k in steps]

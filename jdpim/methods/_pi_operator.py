@@ -76,6 +76,9 @@ class Grid:
         return wx[:, None] * wv[None, :]
 
 
+jax.tree_util.register_dataclass(Grid, data_fields=["x", "v", "dx", "dv"], meta_fields=[])
+
+
 @functools.lru_cache(maxsize=32)
 def cardinal_areas(n: int, order: int, axis: str) -> np.ndarray:
     """``int L_k(t) dt`` over ``[0, n - 1]`` for the cardinal functions of the ``order``-point ``stencil`` on ``axis``.

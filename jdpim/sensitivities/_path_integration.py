@@ -6,9 +6,10 @@ fixed point (one linear solve per parameter and Newton system). The result is th
 discrete solver: it has no sampling error, only the grid's discretisation error (measured in
 docs/gradients.md).
 
-The grid extents are static, so they are read from a run at the nominal parameters (which also raises
-what path integration refuses and reports its ``PathIntegrationWarning`` for the nominal grid) and held
-fixed while the parameters move.
+The grid extents and the order of the weights are static, so they are fixed at the nominal parameters
+(where path integration also refuses what it cannot solve, before tracing) and held while the parameters
+move. The nominal density is the primal of the same forward-mode run (``has_aux``): its
+``PathIntegrationWarning`` is reported from there, with no separate nominal solve.
 """
 
 from __future__ import annotations
@@ -22,7 +23,8 @@ import numpy as np
 
 from .._scene import Scene, with_parameters
 from ..methods._base import solve
-from ..methods._path_integration import LINEAR_BELOW_R, PathIntegration
+from ..methods._path_integration import PathIntegration, check_resolution, report, resolved, validate
+from ..methods._pi_operator import make_grid
 from ._estimators import SensitivityWarning
 
 START_HORIZONS = 10.0  # t / t0 below which the point start's approximation shows in dp/dgamma, dp/dr (measured)
@@ -40,17 +42,25 @@ def default_settings(t: float, stationary: bool = False) -> PathIntegration:
 
 
 def nominal_run(scene: Scene, settings: PathIntegration, t: float):
-    """``(scene saving only t, settings with the nominal grid's extents and order, nominal GridResult)``."""
+    """``(scene saving only t, settings with the nominal grid's extents and order, the nominal grid)``.
+
+    Raises what path integration refuses (``ValueError``/``TypeError``) and warns where the grid is too coarse,
+    as a solve would, without solving.
+    """
     if not settings.stationary:
         scene = scene.replace(save_at=(t,))
-    nominal = solve(scene, settings)
-    x, v = np.asarray(nominal.x, float), np.asarray(nominal.v, float)
-    order = settings.order
-    if order is None:  # under jacfwd a traced r cannot choose the weights: choose them from the nominal r
-        r = float(np.max(np.asarray(scene.model.r))) if scene.model.has_barrier else 1.0
-        order = 2 if r < LINEAR_BELOW_R else 4
+    validate(scene, settings, settings.initial, settings.stationary)
+    settings, extents = resolved(scene, settings)
+    check_resolution(scene, settings, extents, point_start=settings.initial is None and not settings.stationary)
+    grid = _grid(scene.model, settings.n_x, settings.n_v, *extents, scene.float_dtype)
+    x, v = np.asarray(grid.x, float), np.asarray(grid.v, float)
     x_max = x[-1] - x[0] if scene.model.has_barrier else x[-1]
-    return scene, dataclasses.replace(settings, x_max=float(x_max), v_max=float(v[-1]), order=order), nominal
+    return scene, dataclasses.replace(settings, x_max=float(x_max), v_max=float(v[-1])), grid
+
+
+# the nodes as a solve computes them (compiled, as inside the solve's program), so that the extents read from them
+# give the derivative's run the nominal grid to the last bit
+_grid = jax.jit(make_grid, static_argnums=(1, 2, 3, 4, 5))
 
 
 def grid_sensitivity(scene: Scene, settings: PathIntegration, query, nominal=None):
@@ -86,7 +96,8 @@ def check_start(t: float, settings: PathIntegration) -> None:
 
 
 def check_noise_resolution(scene: Scene, settings: PathIntegration, res) -> None:
-    """Warn when one half step's diffusion spans too few velocity spacings for a derivative in ``D``."""
+    """Warn when one half step's diffusion spans too few velocity spacings for a derivative in ``D`` (``res``: the
+    grid, or anything with its nodes ``x`` and ``v``)."""
     model = scene.model
     gains = jnp.atleast_1d(model.gains(res.x[0], jnp.zeros((), res.x.dtype)))
     q = float(gains @ jnp.atleast_2d(jnp.asarray(scene.noise.D, res.x.dtype)) @ gains)
@@ -113,18 +124,19 @@ def path_integration_sensitivity(nominal, values: dict, var: str, grid, t, bandw
 
     ``nominal`` is what :func:`nominal_run` returns.
     """
-    run_scene, fixed, res = nominal
+    run_scene, fixed, nodes = nominal
     if not fixed.stationary:
         check_start(t, fixed)
     if "D" in values:
-        check_noise_resolution(run_scene, fixed, res)
+        check_noise_resolution(run_scene, fixed, nodes)
 
     def pdf_of(vals):
         s = with_parameters(run_scene, vals)
         res = solve(s, fixed)
-        return grid_density(res, var, grid, None if fixed.stationary else t, bandwidth)
+        return grid_density(res, var, grid, None if fixed.stationary else t, bandwidth), res
 
-    derivative = jax.jacfwd(pdf_of)(values)
+    derivative, res = jax.jacfwd(pdf_of, has_aux=True)(values)
+    report(res, fixed)  # the nominal density's warnings (traced inside the run, so not reported there)
     bad = {n: int(jnp.sum(~jnp.isfinite(d))) for n, d in derivative.items()}
     bad = {n: k for n, k in bad.items() if k}
     if bad:
