@@ -97,8 +97,8 @@ TABLE_1 = (
     ("D", "{D:g}", "r"),
     ("method", "{method}", "l"),
     ("paths", "{paths}", "r"),
-    ("wall (s)", "{wall_s:.1f}{note}", "r"),
-    ("CPU (s)", "{cpu_s:.1f}", "r"),
+    ("wall (s)", "{wall_s:.3g}{note}", "r"),
+    ("CPU (s)", "{cpu_s:.3g}", "r"),
 )
 
 
@@ -128,7 +128,7 @@ def reproduce(settings: Settings = QUICK, out="jdpim_out/paper", *, pdf: bool = 
         for name, (what, n, method) in methods.items():
             results[name], wall, cpu = report.solve_timed(sc, method, log, f"{step} {what}")
             table.append(
-                {"D": D, "method": what, "paths": n, "wall_s": round(wall, 2), "cpu_s": round(cpu, 2),
+                {"D": D, "method": what, "paths": n, "wall_s": round(wall, 4), "cpu_s": round(cpu, 4),
                  "compilation_included": i == 0}
             )  # fmt: skip
         reps = []
