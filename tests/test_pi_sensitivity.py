@@ -6,11 +6,10 @@ width ``h`` adds ``h^2`` to the variance, so the derivatives of the smoothed den
 """
 
 import dataclasses
-import logging
-import re
 
 import numpy as np
 import pytest
+from test_first_solve import compiled_programs
 
 import jdpim
 from jdpim import exact
@@ -187,39 +186,15 @@ def test_short_horizons_default_to_an_earlier_finer_start():
         assert np.linalg.norm(out[name] - ref) / np.linalg.norm(ref) < 1e-3, name
 
 
-class _Programs(logging.Handler):
-    """Names of the programs JAX lowers and compiles (or loads from the persistent cache) while attached."""
-
-    def __init__(self):
-        super().__init__(logging.DEBUG)
-        self.names = []
-
-    def emit(self, record):
-        found = re.search(r"Finished XLA compilation of (\S+)", record.getMessage())
-        if found:
-            self.names.append(found.group(1))
-
-    def __enter__(self):
-        self.logger = logging.getLogger("jax")
-        self.level = self.logger.level
-        self.logger.addHandler(self)
-        self.logger.setLevel(logging.DEBUG)
-        return self
-
-    def __exit__(self, *exc):
-        self.logger.removeHandler(self)
-        self.logger.setLevel(self.level)
-
-
 def test_one_solve_program_and_the_nominal_warnings(elastic):
     """A derivative by path integration compiles one solve (its primal is the nominal density, no separate nominal
     solve), and reports that density's ``PathIntegrationWarning``: here mass reaches the edges of a too small grid."""
     settings = jdpim.PathIntegration(n_x=17, n_v=33, x_max=0.5, v_max=0.5, tau=0.1, order=2)  # no other test uses it
-    with _Programs() as programs, pytest.warns(jdpim.PathIntegrationWarning, match="reached the grid's edges"):
+    with compiled_programs() as programs, pytest.warns(jdpim.PathIntegrationWarning, match="reached the grid's edges"):
         with pytest.warns(jdpim.SensitivityWarning, match="within 10 x t0"):  # t = 1.2 right after the start
             out = jdpim.sensitivity(elastic.replace(save_at=(1.2,)), ("alpha",), "x", XS, bandwidth=H, method=settings)
     assert np.all(np.isfinite(out["alpha"]))
-    assert [n for n in programs.names if "_transient" in n] == ["jit(_transient)"]
+    assert [n for n in programs if "_transient" in n] == ["jit(_transient)"]
 
 
 def test_short_horizons_after_the_point_start_are_flagged():
