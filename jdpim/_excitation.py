@@ -249,7 +249,7 @@ class GaussianNodes(AbstractExcitation):
 
     Examples:
         >>> import jdpim
-        >>> scene = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=2.0, dt=0.01, excitation=jdpim.GaussianNodes())
+        >>> scene = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=2.0, dt=0.02, excitation=jdpim.GaussianNodes())
         >>> jdpim.solve(scene, jdpim.MonteCarlo(n_samples=64, seed=0)).states.shape
         (64, 1, 2)
     """

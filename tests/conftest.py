@@ -71,6 +71,14 @@ def _release_compiled_programs():
 ALPHA, D_REF = 0.03, 0.03
 T_TRANSIENT, T_LATE = 10.0, 100.0
 
+# Sizes of a small run, for the tests (and the examples in docs/api.md and the docstrings, which write them out) that
+# need some run of a scene, not a particular horizon or sample: a compiled program depends on the model's structure,
+# t_end, dt, the number of saved times and the number of paths, not on parameter values or which times are saved, so
+# every such test on these sizes and a scene of the same structure loads the program another compiled (the session's
+# compilation cache). FREE_MODEL (no barrier, no cubic damping) is the cheapest to compile.
+T_SMALL, DT_SMALL, N_SMALL = 2.0, 0.02, 64
+FREE_MODEL = jdpim.VibroImpactOscillator(alpha=0.1, gamma=None, barrier=None)
+
 
 @pytest.fixture(scope="session")
 def elastic_scene():

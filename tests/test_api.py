@@ -6,31 +6,31 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import DT_SMALL, FREE_MODEL, N_SMALL, T_SMALL
 from test_first_solve import _Compiles
 
 import jdpim
 
-FREE = jdpim.VibroImpactOscillator(alpha=0.1, gamma=None, barrier=None)  # no barrier: cheap to compile
 PI = jdpim.PathIntegration(n_x=61, n_v=121, tau=0.1)
 
 
 @pytest.fixture(scope="module")
 def scene():
-    return jdpim.Scene(FREE, noise=jdpim.WhiteNoise(D=0.05), t_end=2.0, dt=0.02)
+    return jdpim.Scene(FREE_MODEL, noise=jdpim.WhiteNoise(D=0.05), t_end=T_SMALL, dt=DT_SMALL)
 
 
 @pytest.fixture(scope="module")
 def results(scene):
     return {
-        "dpim": jdpim.solve(scene, jdpim.DPIM(n_points=64)),
-        "monte_carlo": jdpim.solve(scene, jdpim.MonteCarlo(n_samples=64, seed=3)),
+        "dpim": jdpim.solve(scene, jdpim.DPIM(n_points=N_SMALL)),
+        "monte_carlo": jdpim.solve(scene, jdpim.MonteCarlo(n_samples=N_SMALL, seed=3)),
         "path_integration": jdpim.solve(scene, PI),
     }
 
 
 def test_solve_reproduces_the_shorthands_bit_for_bit(scene, results):
-    np.testing.assert_array_equal(results["dpim"].states, jdpim.dpim(scene, 64).states)
-    np.testing.assert_array_equal(results["monte_carlo"].states, jdpim.monte_carlo(scene, 64, seed=3).states)
+    np.testing.assert_array_equal(results["dpim"].states, jdpim.dpim(scene, N_SMALL).states)
+    np.testing.assert_array_equal(results["monte_carlo"].states, jdpim.monte_carlo(scene, N_SMALL, seed=3).states)
     np.testing.assert_array_equal(results["path_integration"].density, jdpim.path_integration(scene, PI).density)
     stationary = jdpim.solve(scene, jdpim.PathIntegration(n_x=61, n_v=121, tau=0.1, stationary=True))
     np.testing.assert_array_equal(stationary.density, jdpim.path_integration(scene, PI, stationary=True).density)
@@ -117,7 +117,7 @@ def test_a_grid_question_is_one_compiled_program(results):
 
 
 def test_t_is_required_where_a_result_holds_several_times(scene):
-    res = jdpim.solve(scene.replace(save_at=(1.0, 2.0)), jdpim.DPIM(n_points=16))
+    res = jdpim.solve(scene.replace(save_at=(1.0, 2.0)), jdpim.DPIM(n_points=N_SMALL))
     with pytest.raises(ValueError, match=r"t is required: this result holds 2 saved times"):
         res.pdf("x", np.linspace(-1, 1, 5))
     with pytest.raises(ValueError, match=r"coordinates \('x', 'v'\) or a function of the state"):
@@ -129,7 +129,7 @@ def test_t_is_required_where_a_result_holds_several_times(scene):
     [
         (lambda s: jdpim.solve(s, "dpim"), TypeError, r"a jdpim method object, e.g. jdpim.DPIM\(\).*got 'dpim'"),
         (lambda s: jdpim.solve(s, jdpim.DPIM), TypeError, r"got the class DPIM"),
-        (lambda s: jdpim.solve(s, jdpim.DPIM(16)).pdf("x", "abc"), TypeError, r"grid must be numbers"),
+        (lambda s: jdpim.solve(s, jdpim.DPIM(N_SMALL)).pdf("x", "abc"), TypeError, r"grid must be numbers"),
         (lambda s: jdpim.solve(None, jdpim.DPIM()), TypeError, "scene must be a jdpim.Scene"),
         (lambda s: jdpim.DPIM(n_points=1), ValueError, "n_points must be an integer >= 2"),
         (lambda s: jdpim.DPIM(points=np.ones((4, 2))), TypeError, "points must be a jdpim.PointSet"),
@@ -147,7 +147,7 @@ def test_methods_check_their_settings(scene, call, error, match):
 
 def test_solve_and_its_results_pass_through_jit(scene):
     grid = jnp.linspace(-1.0, 1.0, 5)
-    method = jdpim.MonteCarlo(n_samples=16, seed=1)
+    method = jdpim.MonteCarlo(n_samples=N_SMALL, seed=1)
     eager = jdpim.solve(scene, method)
     res = jax.jit(jdpim.solve)(scene, method)  # the method is pytree structure, the scene's leaves are traced
     np.testing.assert_allclose(res.states, eager.states, rtol=1e-6, atol=1e-7)

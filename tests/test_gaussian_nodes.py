@@ -3,6 +3,7 @@
 import jax
 import numpy as np
 import pytest
+from conftest import DT_SMALL, N_SMALL, T_SMALL
 
 import jdpim
 
@@ -59,16 +60,16 @@ def test_dpim_refuses_and_bad_settings_fail_in_one_line():
 def test_each_method_takes_its_own_forcing_where_the_scene_leaves_it():
     """``Scene(excitation=None)``, the default: Monte Carlo runs on Gaussian nodes and DPIM on the default spectral
     representation, giving the states of those forcings named explicitly, bit for bit."""
-    scene = jdpim.Scene(jdpim.VibroImpactOscillator(), noise=jdpim.WhiteNoise(D=0.03), t_end=2.0, dt=0.01)
+    scene = jdpim.Scene(jdpim.VibroImpactOscillator(), noise=jdpim.WhiteNoise(D=0.03), t_end=T_SMALL, dt=DT_SMALL)
     assert scene.excitation is None
     assert jdpim.MonteCarlo().excitation(scene) == jdpim.MonteCarlo.default_excitation == NODES
     assert jdpim.DPIM().excitation(scene) == jdpim.DPIM.default_excitation == jdpim.SpectralRepresentation()
     spectral = scene.replace(excitation=jdpim.SpectralRepresentation())
     assert jdpim.MonteCarlo().excitation(spectral) == jdpim.SpectralRepresentation()
-    mc = jdpim.MonteCarlo(n_samples=64, seed=3)
+    mc = jdpim.MonteCarlo(n_samples=N_SMALL, seed=3)
     runs = {
         "mc": (jdpim.solve(scene, mc), jdpim.solve(scene.replace(excitation=NODES), mc)),
-        "dpim": (jdpim.solve(scene, jdpim.DPIM(n_points=64)), jdpim.solve(spectral, jdpim.DPIM(n_points=64))),
+        "dpim": (jdpim.solve(scene, jdpim.DPIM(n_points=N_SMALL)), jdpim.solve(spectral, jdpim.DPIM(n_points=N_SMALL))),
     }
     for a, b in runs.values():
         np.testing.assert_array_equal(np.asarray(a.states), np.asarray(b.states))

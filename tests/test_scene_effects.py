@@ -4,6 +4,7 @@ import jax
 import jax.extend
 import jax.numpy as jnp
 import pytest
+from conftest import DT_SMALL, N_SMALL, T_SMALL
 
 import jdpim
 from jdpim.methods._paths import simulate
@@ -43,8 +44,12 @@ def test_impact_logic_is_traced_only_with_a_barrier():
 @pytest.mark.parametrize("method", ["dpim", "monte_carlo"])
 def test_new_parameter_values_do_not_recompile(method):
     """On the scene and sizes of the methods' examples (their programs, compiled once a session)."""
-    base = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=2.0, dt=0.01)
-    run = (lambda s: jdpim.dpim(s, n_points=64)) if method == "dpim" else (lambda s: jdpim.monte_carlo(s, n_samples=64))
+    base = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=T_SMALL, dt=DT_SMALL)
+    run = (
+        (lambda s: jdpim.dpim(s, n_points=N_SMALL))
+        if method == "dpim"
+        else (lambda s: jdpim.monte_carlo(s, n_samples=N_SMALL))
+    )
     run(base)
     before = simulate._cache_size()
     for alpha, r, D in [(0.05, 0.9, 0.1), (0.2, 0.5, 0.02)]:

@@ -5,6 +5,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import DT_SMALL, N_SMALL, T_SMALL
 
 import jdpim
 from jdpim._engine import elementwise, locate, resolve
@@ -32,18 +33,21 @@ def test_stored_passes_derivatives_through():
 
 
 # Scenes and methods: every path crossing in its first step (one degree of freedom, sticking on as by default), the
-# impact damper, and the damper held on its walls behind a Kanai-Tajimi filter as test_mdof_sticking.py runs it (same
-# sizes), so that a session compiles that stored program, the one users run, once.
+# impact damper (both on the small sizes of conftest.py, the damper saved twice as test_scenefile_mdof.py runs it), and
+# the damper held on its walls behind a Kanai-Tajimi filter as test_mdof_sticking.py runs it (same sizes), so that a
+# session compiles those programs, the ones users run, once.
 SCENES = {
     "one degree of freedom": (
         lambda: jdpim.Scene(
-            jdpim.VibroImpactOscillator(), noise=jdpim.WhiteNoise(D=0.08), t_end=1.0, dt=0.01, x0=1e-3, v0=-1.0
+            jdpim.VibroImpactOscillator(), noise=jdpim.WhiteNoise(D=0.08), t_end=T_SMALL, dt=DT_SMALL, x0=1e-3, v0=-1.0
         ),
-        jdpim.MonteCarlo(n_samples=32, seed=5),
+        jdpim.MonteCarlo(n_samples=N_SMALL, seed=5),
     ),
     "impact damper": (
-        lambda: jdpim.Scene(jdpim.impact_damper(), noise=jdpim.WhiteNoise(D=0.05), t_end=2.0, dt=0.01),
-        jdpim.MonteCarlo(n_samples=32, seed=5),
+        lambda: jdpim.Scene(
+            jdpim.impact_damper(), noise=jdpim.WhiteNoise(D=0.05), t_end=T_SMALL, dt=DT_SMALL, save_at=(1.0, T_SMALL)
+        ),
+        jdpim.MonteCarlo(n_samples=N_SMALL, seed=5),
     ),
     "held on the walls": (
         lambda: jdpim.Scene(

@@ -7,6 +7,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import DT_SMALL, N_SMALL, T_SMALL
 
 import jdpim
 from jdpim import exact, metrics
@@ -17,15 +18,15 @@ GRID = jnp.array([0.2, 0.5, 0.9])
 @pytest.fixture(scope="module")
 def scene():
     model = jdpim.VibroImpactOscillator(alpha=0.1, gamma=0.03, r=0.9)
-    return jdpim.Scene(model, noise=jdpim.WhiteNoise(D=0.03), t_end=2.0, dt=0.05, save_at=(1.0, 2.0))
+    return jdpim.Scene(model, noise=jdpim.WhiteNoise(D=0.03), t_end=T_SMALL, dt=DT_SMALL, save_at=(1.0, T_SMALL))
 
 
 @pytest.fixture(scope="module")
 def results(scene):
     small = jdpim.PathIntegration(n_x=41, n_v=81, x_max=1.5, v_max=1.5, tau=0.1, t0=1.0)
     return {
-        "dpim": jdpim.dpim(scene, n_points=64),
-        "mcs": jdpim.monte_carlo(scene, n_samples=64, seed=0),
+        "dpim": jdpim.dpim(scene, n_points=N_SMALL),
+        "mcs": jdpim.monte_carlo(scene, n_samples=N_SMALL, seed=0),
         "grid": jdpim.path_integration(scene, small),
     }
 
@@ -44,13 +45,13 @@ def test_results_pass_through_jit_as_arguments_and_outputs(results, name):
 
 
 def test_a_batch_of_results_passes_through_vmap(scene):
-    points = jdpim.dpim_points(scene, 64)  # the size of results["dpim"]: run(D) below reuses its program
+    points = jdpim.dpim_points(scene, N_SMALL)  # the size of results["dpim"]: run(D) below reuses its program
 
     def run(D):
         return jdpim.dpim(scene.replace(noise=jdpim.WhiteNoise(D=D)), points=points)
 
     batch = jax.vmap(run)(jnp.array([0.02, 0.04]))
-    assert batch.states.shape == (2, 64, 2, 2) and batch.times == (1.0, 2.0)
+    assert batch.states.shape == (2, N_SMALL, 2, 2) and batch.times == (1.0, 2.0)
     pdfs = jax.vmap(lambda r: r.pdf("x", GRID, 2.0))(batch)
     for i, D in enumerate((0.02, 0.04)):
         np.testing.assert_allclose(np.asarray(pdfs[i]), np.asarray(run(D).pdf("x", GRID, 2.0)), rtol=2e-5, atol=1e-7)

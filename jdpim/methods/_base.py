@@ -55,7 +55,7 @@ def solve(scene: Scene, method: AbstractMethod, *, checkpoint=None):
 
     Examples:
         >>> import jdpim
-        >>> scene = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=2.0, dt=0.01)
+        >>> scene = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=2.0, dt=0.02)
         >>> res = jdpim.solve(scene, jdpim.MonteCarlo(n_samples=64, seed=1))
         >>> res.states.shape, res.coordinates
         ((64, 1, 2), ('x', 'v'))

@@ -42,7 +42,7 @@ class DPIM(SamplingMethod):
 
     Examples:
         >>> import jdpim
-        >>> scene = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=2.0, dt=0.01)
+        >>> scene = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=2.0, dt=0.02)
         >>> jdpim.solve(scene, jdpim.DPIM(n_points=64)).states.shape
         (64, 1, 2)
 
@@ -94,7 +94,7 @@ def dpim(
 
     Examples:
         >>> import jdpim
-        >>> scene = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=2.0, dt=0.01)
+        >>> scene = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=2.0, dt=0.02)
         >>> jdpim.dpim(scene, n_points=64).states.shape
         (64, 1, 2)
     """

@@ -31,7 +31,7 @@ class MonteCarlo(SamplingMethod):
 
     Examples:
         >>> import jdpim
-        >>> scene = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=2.0, dt=0.01)
+        >>> scene = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=2.0, dt=0.02)
         >>> jdpim.solve(scene, jdpim.MonteCarlo(n_samples=64, seed=1)).states.shape
         (64, 1, 2)
     """
@@ -67,7 +67,7 @@ def monte_carlo(
 
     Examples:
         >>> import jdpim
-        >>> scene = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=2.0, dt=0.01)
+        >>> scene = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=2.0, dt=0.02)
         >>> jdpim.monte_carlo(scene, n_samples=64, seed=1).states.shape
         (64, 1, 2)
     """
