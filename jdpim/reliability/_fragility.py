@@ -268,8 +268,8 @@ def fragility(
     Examples:
         >>> import jdpim
         >>> model = jdpim.VibroImpactOscillator(alpha=0.2, gamma=None, barrier=None)
-        >>> scene = jdpim.Scene(model, noise=jdpim.WhiteNoise(0.1), t_end=5.0, dt=0.02)
-        >>> fr = jdpim.fragility(scene, "x", 0.5, [0.5, 1.0, 2.0], jdpim.MonteCarlo(n_samples=500, seed=0))
+        >>> scene = jdpim.Scene(model, noise=jdpim.WhiteNoise(0.1), t_end=2.0, dt=0.02)
+        >>> fr = jdpim.fragility(scene, "x", 0.5, [0.5, 1.0, 2.0], jdpim.MonteCarlo(n_samples=200, seed=0))
         >>> fr.probability.shape, bool(fr.probability[2] > fr.probability[0])
         ((3,), True)
     """
