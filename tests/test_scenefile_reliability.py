@@ -29,7 +29,7 @@ save_at = [1.0, 2.0]
 
 [method]
 name = ["dpim", "monte_carlo"]
-n_points = 32
+n_points = 64
 n_samples = 64
 
 [output]
@@ -69,7 +69,7 @@ def test_run_stores_first_passage_equal_to_a_direct_call_and_leaves_the_rest_as_
     model = jdpim.VibroImpactOscillator(alpha=0.03, gamma=0.03, r=0.98)
     scene = jdpim.Scene(model, noise=jdpim.WhiteNoise(D=0.03), t_end=2.0, dt=0.02, save_at=(1.0, 2.0))
     np.testing.assert_array_equal(arrays["first_passage_levels"], [0.05, 0.1])
-    for name, method in (("dpim", jdpim.DPIM(n_points=32)), ("monte_carlo", jdpim.MonteCarlo(n_samples=64, seed=0))):
+    for name, method in (("dpim", jdpim.DPIM(n_points=64)), ("monte_carlo", jdpim.MonteCarlo(n_samples=64, seed=0))):
         fp = jdpim.first_passage(scene, "x", [0.05, 0.1], method)
         np.testing.assert_array_equal(arrays[f"first_passage_{name}_probability"], fp.probability)
         np.testing.assert_array_equal(arrays[f"first_passage_{name}_lost_mass"], fp.lost_mass)
