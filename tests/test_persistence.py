@@ -17,6 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import DT_SMALL, FREE_MODEL, T_SMALL
 
 import jdpim
 
@@ -102,8 +103,7 @@ def grid_result(stationary=False):
 @pytest.fixture(scope="module")
 def small_sensitivity():
     """``dp(v)/dalpha`` by DPIM (pathwise) on a cheap scene; 16 points give a large standard error (warned)."""
-    model = jdpim.VibroImpactOscillator(alpha=0.1, gamma=None, barrier=None)
-    scene = jdpim.Scene(model, noise=jdpim.WhiteNoise(D=0.05), t_end=2.0, dt=0.02)
+    scene = jdpim.Scene(FREE_MODEL, noise=jdpim.WhiteNoise(D=0.05), t_end=T_SMALL, dt=DT_SMALL)
     method = jdpim.DPIM(16)
     with pytest.warns(jdpim.SensitivityWarning, match="standard error"):
         sens = jdpim.sensitivity(scene, ("alpha",), "v", np.linspace(-1.0, 1.0, 9), method=method)
