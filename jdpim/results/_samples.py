@@ -221,11 +221,7 @@ class Result(AbstractResult):
         :meth:`bounds`); a side without a bound holds 0. Works under ``jax.jit``.
         """
         lim = self._limits(var, t, bounds)
-        at = self.samples(var, t)
-        ok = jnp.isfinite(at)
-        w = jnp.where(ok, self.weights, 0.0)
-        held = self._held(var, t, *lim)
-        return jnp.stack([jnp.zeros((), w.dtype) if h is None else jnp.sum(jnp.where(h & ok, w, 0.0)) for h in held])
+        return _held_mass(self.samples(var, t), self.weights, self._held(var, t, *lim))
 
     def n_nonfinite(self):
         """Number of paths with a non-finite state, per saved time; shape ``(S,)``."""
@@ -240,7 +236,7 @@ class Result(AbstractResult):
 
     def mass(self, t: float | None = None):
         """Probability carried by the paths with finite states at saved time ``t`` (``1 - lost_mass``)."""
-        return 1.0 - self.lost_mass()[self._index(t)]
+        return _mass(self.states, self.weights, self._index(t))
 
     def bandwidth(self, var, t: float | None = None, rule: str = "chen", *, dim: int = 1, c: float | None = None):
         """The rule-based kernel standard deviation for ``var`` at time ``t`` (see ``jdpim.bandwidth``), of the
@@ -424,6 +420,21 @@ def nonfinite_counts(states):
 def _lost_mass(states, weights):
     bad = ~jnp.all(jnp.isfinite(states), axis=-1)
     return jnp.sum(jnp.where(bad, weights[:, None], 0.0), axis=0)
+
+
+@jax.jit
+def _held_mass(y, weights, held):
+    """``(2,)``: the probability of the paths with a finite value ``y`` ``(N,)`` held at each bound (``held``: per
+    bound ``(N,)`` bools, or ``None`` for no bound: 0); one compiled program."""
+    ok = jnp.isfinite(y)
+    w = jnp.where(ok, weights, 0.0)
+    return jnp.stack([jnp.zeros((), w.dtype) if h is None else jnp.sum(jnp.where(h & ok, w, 0.0)) for h in held])
+
+
+@jax.jit
+def _mass(states, weights, index):
+    """``1 - lost_mass()[index]``: one compiled program."""
+    return 1.0 - _lost_mass(states, weights)[index]
 
 
 @functools.partial(jax.jit, static_argnums=2)
