@@ -67,7 +67,7 @@ def position_coefficients(var, coordinates: tuple, dtype) -> tuple[np.ndarray, f
         return (np.eye(d)[i], 0.0) if i < d else None
     with jax.ensure_compile_time_eval():
         ramp = np.arange(1.0, n + 1.0) * np.where(np.arange(n) % 2, -1.0, 1.0)
-        probes = [jnp.asarray(a * ramp, dtype) for a in _PROBES]
+        probes = [jax.device_put(np.asarray(a * ramp, dtype)) for a in _PROBES]  # no compiled cast
         grad = concrete(jax.grad(lambda s: jnp.asarray(var(s), dtype))(probes[0]))
         values = [concrete(var(p)) for p in probes]
     if grad is None or any(v is None or v.shape != () for v in values) or np.any(grad[d:] != 0):
@@ -151,7 +151,9 @@ class Result(AbstractResult):
     def samples(self, var, t: float | None = None):
         """The values of ``var`` (a coordinate name or a function of the state) of every path at ``t``; ``(N,)``."""
         which, index = self._coordinate(var), self._index(t)
-        return jax.vmap(which)(self.states[:, index]) if callable(which) else _entry(self.states, index, which)
+        if callable(which):
+            return jax.vmap(which)(_state_and_motion(self.states, index)[0])
+        return _entry(self.states, index, which)
 
     def bounds(self, var):
         """``(lower, upper)``: the range of ``var`` the model's constraints imply (``None`` for a side without one).
@@ -195,12 +197,10 @@ class Result(AbstractResult):
         which, index = self._coordinate(var), self._index(t)
         if not callable(which):
             return _held_entry(self.states, index, which, lower, upper)
-        at = self.states[:, index]
-        d = at.shape[-1] // 2
-        q, v = at[:, :d], at[:, d:]
-        tangent = jnp.concatenate([v, jnp.zeros_like(v)], axis=-1)
+        at, tangent = _state_and_motion(self.states, index)
         rate = jax.vmap(lambda s, ds: jax.jvp(which, (s,), (ds,))[1])(at, tangent)
-        return _held_at(self.samples(var, t), rate, q, v, lower, upper)
+        d = at.shape[-1] // 2
+        return _held_at(self.samples(var, t), rate, at[:, :d], at[:, d:], lower, upper)
 
     def _continuous(self, var, t, lower, upper, weights=None):
         """``weights`` (default: the paths') with the paths held at a bound of ``var`` set to zero."""
@@ -435,6 +435,15 @@ def _held_mass(y, weights, held):
 def _mass(states, weights, index):
     """``1 - lost_mass()[index]``: one compiled program."""
     return 1.0 - _lost_mass(states, weights)[index]
+
+
+@jax.jit
+def _state_and_motion(states, index):
+    """``(N, n_state)`` each: every path's state ``(q, v)`` at saved time ``index`` and its rate along positions,
+    ``(v, 0)``: one compiled program (a function of the state is evaluated on them outside it, by the caller)."""
+    at = states[:, index]
+    v = at[:, at.shape[-1] // 2 :]
+    return at, jnp.concatenate([v, jnp.zeros_like(v)], axis=-1)
 
 
 @functools.partial(jax.jit, static_argnums=2)
