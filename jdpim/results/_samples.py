@@ -197,10 +197,9 @@ class Result(AbstractResult):
         which, index = self._coordinate(var), self._index(t)
         if not callable(which):
             return _held_entry(self.states, index, which, lower, upper)
-        at, tangent = _state_and_motion(self.states, index)
+        at, tangent, q, v = _state_and_motion(self.states, index)
         rate = jax.vmap(lambda s, ds: jax.jvp(which, (s,), (ds,))[1])(at, tangent)
-        d = at.shape[-1] // 2
-        return _held_at(self.samples(var, t), rate, at[:, :d], at[:, d:], lower, upper)
+        return _held_at(self.samples(var, t), rate, q, v, lower, upper)
 
     def _continuous(self, var, t, lower, upper, weights=None):
         """``weights`` (default: the paths') with the paths held at a bound of ``var`` set to zero."""
@@ -439,11 +438,13 @@ def _mass(states, weights, index):
 
 @jax.jit
 def _state_and_motion(states, index):
-    """``(N, n_state)`` each: every path's state ``(q, v)`` at saved time ``index`` and its rate along positions,
-    ``(v, 0)``: one compiled program (a function of the state is evaluated on them outside it, by the caller)."""
+    """``(state, motion, q, v)``: every path's state ``(q, v)`` at saved time ``index`` and its rate along the
+    positions ``(v, 0)``, ``(N, n_state)`` each, and its halves ``(N, n)``: one compiled program (a function of the
+    state is evaluated on them outside it)."""
     at = states[:, index]
-    v = at[:, at.shape[-1] // 2 :]
-    return at, jnp.concatenate([v, jnp.zeros_like(v)], axis=-1)
+    d = at.shape[-1] // 2
+    q, v = at[:, :d], at[:, d:]
+    return at, jnp.concatenate([v, jnp.zeros_like(v)], axis=-1), q, v
 
 
 @functools.partial(jax.jit, static_argnums=2)
