@@ -16,7 +16,7 @@ import numpy as np
 
 from ._constraints import Constraints, dot
 from ._distributions import Range
-from ._models import RESTITUTION, AbstractSystem
+from ._models import RESTITUTION, AbstractSystem, stack_scalars
 from ._pytree import array_leaf, check_real, concrete, plain, pytree_dataclass, static_field
 
 
@@ -249,6 +249,5 @@ class MDOFOscillator(AbstractSystem):
         normal = np.array([c.normal for c in self.constraints])
         m_inv_n = normal @ self.inverse_mass()  # rows M^-1 n_j (M symmetric)
         push = m_inv_n / np.sum(m_inv_n * normal, axis=1, keepdims=True)
-        position = jnp.stack([jnp.asarray(c.position) for c in self.constraints])
-        r = jnp.stack([jnp.asarray(c.r) for c in self.constraints])
+        position, r = stack_scalars(tuple(c.position for c in self.constraints), tuple(c.r for c in self.constraints))
         return Constraints(normal, position, r, push)

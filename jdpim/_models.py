@@ -8,6 +8,7 @@ cubic damping, no impact logic when ``barrier is None``).
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Callable
 from typing import Any
 
@@ -69,10 +70,23 @@ class AbstractSystem:
         if any(concrete(leaf) is None for leaf in jax.tree_util.tree_leaves(self)):
             return None
         n = self.dimension
-        q = jnp.asarray(self.rest(), jnp.zeros(()).dtype)
-        xi = jnp.zeros((n_sources_of(self),), q.dtype)
-        dq, dv = jax.jacfwd(lambda q, v: self.state_acceleration(q, v, xi), argnums=(0, 1))(q, jnp.zeros_like(q))
+        dq, dv = _rest_jacobian(self, np.asarray(self.rest(), jnp.result_type(float)), n_sources_of(self))
         return np.block([[np.zeros((n, n)), np.eye(n)], [np.asarray(dq), np.asarray(dv)]])
+
+
+@functools.partial(jax.jit, static_argnums=2)
+def _rest_jacobian(model: AbstractSystem, q, n_sources: int):
+    """``(d q''/d q, d q''/d v)`` ``(n, n)`` each at ``(q, 0)`` without noise: one compiled program per model
+    structure (the parameters traced)."""
+    xi = jnp.zeros((n_sources,), q.dtype)
+    return jax.jacfwd(lambda q, v: model.state_acceleration(q, v, xi), argnums=(0, 1))(q, jnp.zeros_like(q))
+
+
+@jax.jit
+def stack_scalars(*groups):
+    """Each tuple of scalars in ``groups`` as one ``(J,)`` array (``jnp.stack``): one compiled program for all of
+    them where the values are concrete numbers (a constraint's positions and restitutions), inline where traced."""
+    return tuple(jnp.stack([jnp.asarray(v) for v in group]) for group in groups)
 
 
 class AbstractOscillator(AbstractSystem):
@@ -131,7 +145,7 @@ class AbstractOscillator(AbstractSystem):
         if self.barrier is None:
             return None
         one = np.ones((1, 1))
-        return Constraints(one, jnp.reshape(self.barrier, (1,)), jnp.reshape(self.r, (1,)), one)
+        return Constraints(one, *stack_scalars((self.barrier,), (self.r,)), one)
 
 
 def _check_impact(r, barrier) -> None:

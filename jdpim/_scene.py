@@ -372,7 +372,7 @@ def get_parameter(model, name: str):
         return model.params[name]
     if isinstance(model, MDOFOscillator):
         if m := _MATRIX_ENTRY.match(name):
-            return jnp.asarray(getattr(model, m[1]))[int(m[2]), int(m[3])]
+            return _matrix_entry(getattr(model, m[1]), int(m[2]), int(m[3]))
         if m := _CONSTRAINT.match(name):
             return getattr(model.constraints[int(m[1])], m[2])
     return getattr(model, name)
@@ -384,13 +384,24 @@ def set_parameter(model, name: str, value):
         return model.replace(params={**model.params, name: value})
     if isinstance(model, MDOFOscillator):
         if m := _MATRIX_ENTRY.match(name):
-            matrix = jnp.asarray(getattr(model, m[1]))
-            return model.replace(**{m[1]: matrix.at[int(m[2]), int(m[3])].set(value)})
+            return model.replace(**{m[1]: _with_matrix_entry(getattr(model, m[1]), int(m[2]), int(m[3]), value)})
         if m := _CONSTRAINT.match(name):
             j = int(m[1])
             changed = dataclasses.replace(model.constraints[j], **{m[2]: value})
             return model.replace(constraints=model.constraints[:j] + (changed,) + model.constraints[j + 1 :])
     return model.replace(**{name: value})
+
+
+@jax.jit
+def _matrix_entry(matrix, i, j):
+    """``matrix[i, j]``: one compiled program per matrix shape and dtype."""
+    return jnp.asarray(matrix)[i, j]
+
+
+@jax.jit
+def _with_matrix_entry(matrix, i, j, value):
+    """``matrix`` with entry ``(i, j)`` set to ``value`` (may be traced): one compiled program per shape and dtype."""
+    return jnp.asarray(matrix).at[i, j].set(value)
 
 
 def with_model_parameters(model, names: tuple[str, ...], values) -> Any:

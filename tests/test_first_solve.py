@@ -9,11 +9,17 @@ import numpy as np
 import pytest
 
 import jdpim
+from jdpim.results._samples import model_constraints
 
-# programs a first Monte Carlo solve, density and moment compile besides the run in a fresh process: the dtype probe,
-# keys and weights, forces at rest, finished states, the barrier's two, the constraint bound, the entry, the held
-# paths, the bandwidth rule, the kernel sum, the moment (docs/compilation.md)
-FIRST_SOLVE_PROGRAMS = 12
+# programs a first Monte Carlo solve, density and moment compile besides the run in a fresh process: keys and
+# weights, forces at rest, finished states, the stacked constraints, the constraint bound, the entry, the held paths,
+# the bandwidth rule, the kernel sum, the moment (docs/compilation.md)
+FIRST_SOLVE_PROGRAMS = 10
+# programs a density, the held mass and the mass of a function of the state compile in a fresh process: the
+# library's 7 (the bound, the state at a time, the held paths, the weights without them, the kernel sum, the held mass,
+# the mass) and the function's own operations, evaluated one by one (14 for a difference of two coordinates: its
+# values, its derivative for the linearity probe, its rate along the motion)
+FUNCTION_QUESTION_PROGRAMS = 21
 
 
 class _Compiles(logging.Handler):
@@ -74,3 +80,45 @@ def test_moment_order_is_an_integer():
         res.moment("x", 1.5)
     with pytest.raises(ValueError, match="order must be an integer >= 0"):
         res.moment("x", -1)
+
+
+def test_questions_about_a_function_of_the_state_compile_a_few_programs():
+    """Density, held mass and mass of the impact damper's gap (a function of the state) on a result built by hand:
+    the library's steps are one compiled program each, only the function's own operations are evaluated one by one
+    (a new function object compiles no new program)."""
+    damper = jdpim.impact_damper()
+    states = np.array([[0.3, 0.2, 0.5, 0.5], [-0.05, 0.05, 0.0, 0.2], [0.2, 0.21, 0.1, -0.4]], np.float32)
+    res = jdpim.Result((1.0,), states[:, None, :], np.full(3, 1 / 3, np.float32), None, "monte_carlo",
+                       damper.coordinates, model_constraints(damper))  # fmt: skip
+    with compiled_programs() as names:
+        jax.block_until_ready((res.pdf(_gap, [0.0, 0.05], bandwidth=0.02), res.atoms(_gap), res.mass()))
+    assert len(names) <= FUNCTION_QUESTION_PROGRAMS, names
+    with compiled_programs() as again:
+        jax.block_until_ready((res.pdf(lambda s: s[1] - s[0], [0.0, 0.05], bandwidth=0.02), res.atoms(_gap)))
+    assert again == [], again
+
+
+def _gap(state):
+    return state[1] - state[0]
+
+
+def _cubic(q, v, p):
+    return -p * q**3
+
+
+def test_the_jacobian_at_rest_is_one_program():
+    """The step-size check of a model with a ``force`` function evaluates its Jacobian at rest as one compiled
+    program per model structure: other parameter values compile nothing."""
+
+    def model(k):
+        return jdpim.MDOFOscillator(mass=[[1.0]], gains=[[1.0]], damping=[[0.1]], stiffness=[[k]],
+                                    force=_cubic, params=0.5)  # fmt: skip
+
+    with compiled_programs() as names:
+        first = model(2.0).linearised()
+    with compiled_programs() as again:
+        second = model(3.0).linearised()
+    assert names.count("jit(_rest_jacobian)") <= 1 and len(names) <= 1, names
+    assert again == [], again
+    np.testing.assert_array_equal(first[1], np.float32([-2.0, -0.1]))  # computed in float32
+    np.testing.assert_array_equal(second[1], np.float32([-3.0, -0.1]))

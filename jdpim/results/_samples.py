@@ -67,7 +67,7 @@ def position_coefficients(var, coordinates: tuple, dtype) -> tuple[np.ndarray, f
         return (np.eye(d)[i], 0.0) if i < d else None
     with jax.ensure_compile_time_eval():
         ramp = np.arange(1.0, n + 1.0) * np.where(np.arange(n) % 2, -1.0, 1.0)
-        probes = [jnp.asarray(a * ramp, dtype) for a in _PROBES]
+        probes = [jax.device_put(np.asarray(a * ramp, dtype)) for a in _PROBES]  # no compiled cast
         grad = concrete(jax.grad(lambda s: jnp.asarray(var(s), dtype))(probes[0]))
         values = [concrete(var(p)) for p in probes]
     if grad is None or any(v is None or v.shape != () for v in values) or np.any(grad[d:] != 0):
@@ -151,7 +151,9 @@ class Result(AbstractResult):
     def samples(self, var, t: float | None = None):
         """The values of ``var`` (a coordinate name or a function of the state) of every path at ``t``; ``(N,)``."""
         which, index = self._coordinate(var), self._index(t)
-        return jax.vmap(which)(self.states[:, index]) if callable(which) else _entry(self.states, index, which)
+        if callable(which):
+            return jax.vmap(which)(_state_and_motion(self.states, index)[0])
+        return _entry(self.states, index, which)
 
     def bounds(self, var):
         """``(lower, upper)``: the range of ``var`` the model's constraints imply (``None`` for a side without one).
@@ -195,10 +197,7 @@ class Result(AbstractResult):
         which, index = self._coordinate(var), self._index(t)
         if not callable(which):
             return _held_entry(self.states, index, which, lower, upper)
-        at = self.states[:, index]
-        d = at.shape[-1] // 2
-        q, v = at[:, :d], at[:, d:]
-        tangent = jnp.concatenate([v, jnp.zeros_like(v)], axis=-1)
+        at, tangent, q, v = _state_and_motion(self.states, index)
         rate = jax.vmap(lambda s, ds: jax.jvp(which, (s,), (ds,))[1])(at, tangent)
         return _held_at(self.samples(var, t), rate, q, v, lower, upper)
 
@@ -221,11 +220,7 @@ class Result(AbstractResult):
         :meth:`bounds`); a side without a bound holds 0. Works under ``jax.jit``.
         """
         lim = self._limits(var, t, bounds)
-        at = self.samples(var, t)
-        ok = jnp.isfinite(at)
-        w = jnp.where(ok, self.weights, 0.0)
-        held = self._held(var, t, *lim)
-        return jnp.stack([jnp.zeros((), w.dtype) if h is None else jnp.sum(jnp.where(h & ok, w, 0.0)) for h in held])
+        return _held_mass(self.samples(var, t), self.weights, self._held(var, t, *lim))
 
     def n_nonfinite(self):
         """Number of paths with a non-finite state, per saved time; shape ``(S,)``."""
@@ -240,7 +235,7 @@ class Result(AbstractResult):
 
     def mass(self, t: float | None = None):
         """Probability carried by the paths with finite states at saved time ``t`` (``1 - lost_mass``)."""
-        return 1.0 - self.lost_mass()[self._index(t)]
+        return _mass(self.states, self.weights, self._index(t))
 
     def bandwidth(self, var, t: float | None = None, rule: str = "chen", *, dim: int = 1, c: float | None = None):
         """The rule-based kernel standard deviation for ``var`` at time ``t`` (see ``jdpim.bandwidth``), of the
@@ -424,6 +419,32 @@ def nonfinite_counts(states):
 def _lost_mass(states, weights):
     bad = ~jnp.all(jnp.isfinite(states), axis=-1)
     return jnp.sum(jnp.where(bad, weights[:, None], 0.0), axis=0)
+
+
+@jax.jit
+def _held_mass(y, weights, held):
+    """``(2,)``: the probability of the paths with a finite value ``y`` ``(N,)`` held at each bound (``held``: per
+    bound ``(N,)`` bools, or ``None`` for no bound: 0); one compiled program."""
+    ok = jnp.isfinite(y)
+    w = jnp.where(ok, weights, 0.0)
+    return jnp.stack([jnp.zeros((), w.dtype) if h is None else jnp.sum(jnp.where(h & ok, w, 0.0)) for h in held])
+
+
+@jax.jit
+def _mass(states, weights, index):
+    """``1 - lost_mass()[index]``: one compiled program."""
+    return 1.0 - _lost_mass(states, weights)[index]
+
+
+@jax.jit
+def _state_and_motion(states, index):
+    """``(state, motion, q, v)``: every path's state ``(q, v)`` at saved time ``index`` and its rate along the
+    positions ``(v, 0)``, ``(N, n_state)`` each, and its halves ``(N, n)``: one compiled program (a function of the
+    state is evaluated on them outside it)."""
+    at = states[:, index]
+    d = at.shape[-1] // 2
+    q, v = at[:, :d], at[:, d:]
+    return at, jnp.concatenate([v, jnp.zeros_like(v)], axis=-1), q, v
 
 
 @functools.partial(jax.jit, static_argnums=2)
