@@ -96,15 +96,18 @@ def cardinal_areas(n: int, order: int, axis: str) -> np.ndarray:
     return out
 
 
-def make_grid(model: AbstractOscillator, n_x: int, n_v: int, x_max: float, v_max: float, dtype) -> Grid:
-    """Nodes: ``x`` in ``[b, b + x_max]`` (barrier ``b``) or ``[-x_max, x_max]``; ``v`` in ``[-v_max, v_max]``."""
+def make_grid(model: AbstractOscillator, n_x: int, n_v: int, x_max, v_max, dtype) -> Grid:
+    """Nodes: ``x`` in ``[b, b + x_max]`` (barrier ``b``) or ``[-x_max, x_max]``; ``v`` in ``[-v_max, v_max]``.
+
+    The extents are values (traced inside a solve's program, so that one program serves every extent); the
+    sizes ``n_x``, ``n_v`` set the shapes.
+    """
+    x_max, v_max = jnp.asarray(x_max, dtype), jnp.asarray(v_max, dtype)
     if model.has_barrier:
-        lo = jnp.asarray(model.barrier, dtype)
-        dx = jnp.asarray(x_max / (n_x - 1), dtype)
+        lo, dx = jnp.asarray(model.barrier, dtype), x_max / (n_x - 1)
     else:
-        lo = jnp.asarray(-x_max, dtype)
-        dx = jnp.asarray(2 * x_max / (n_x - 1), dtype)
-    dv = jnp.asarray(2 * v_max / (n_v - 1), dtype)
+        lo, dx = -x_max, 2 * x_max / (n_x - 1)
+    dv = 2 * v_max / (n_v - 1)
     x = lo + dx * jnp.arange(n_x, dtype=dtype)
     v = -v_max + dv * jnp.arange(n_v, dtype=dtype)
     return Grid(x, v, dx, dv)
