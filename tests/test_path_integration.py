@@ -115,6 +115,14 @@ def test_a_sweep_over_d_or_r_compiles_no_new_solve(stationary32):
     assert float(stationary.mass()) == pytest.approx(1.0, abs=1e-5)
 
 
+def test_the_velocity_grid_is_exactly_symmetric(stationary32):
+    """The velocity nodes are counted from the middle: an exact ``v = 0`` node for odd ``n_v`` (its sign picks the
+    impact fold's branch for its ghost mass) and exact mirror images, however the program rounds its extents."""
+    v = np.asarray(stationary32.v)
+    assert v[(v.size - 1) // 2] == 0.0
+    np.testing.assert_array_equal(v, -v[::-1])
+
+
 @pytest.mark.parametrize("r", [0.3, 0.05])
 def test_small_restitution_conserves_mass(r):
     model = jdpim.VibroImpactOscillator(alpha=0.03, gamma=0.03, r=r)
