@@ -10,6 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from test_first_solve import compiled_programs
 
 import jdpim
 from jdpim import exact, metrics
@@ -92,6 +93,34 @@ def test_float32_agrees_with_float64(stationary64, stationary32):
     res32 = stationary32
     assert res32.density.dtype == jnp.float32
     assert metrics.l1(np.asarray(res32.pdf("x", XG)), stationary64["pdf_x"], XG) < 1e-4
+
+
+def test_a_sweep_over_d_or_r_compiles_no_new_solve(stationary32):
+    """The grid's extents (estimated from D, r, ...) and the start law are values in one program per grid size: a
+    stationary solve at another D, and a transient at another r, compile no new solve once that size ran."""
+    with jax.enable_x64(True):
+        transient = elastic(save_at=(5.0, 20.0))  # the program of test_elastic_transient_from_rest_matches_exact
+        first = jdpim.path_integration(transient, SMALL)
+        other_r = transient.replace(model=jdpim.VibroImpactOscillator(alpha=ALPHA, gamma=None, r=0.9))
+        with compiled_programs() as names:
+            second = jdpim.path_integration(other_r, SMALL)
+        assert float(second.mass(5.0)) == pytest.approx(1.0, abs=1e-9)
+    with compiled_programs() as more:
+        stationary = jdpim.path_integration(elastic("float32", noise=jdpim.WhiteNoise(D=2 * D)), SMALL, stationary=True)
+    names += more
+    assert not [n for n in names if "_stationary" in n or "_transient" in n], names
+    # the extents moved with D and r: a program with constant extents would have compiled twice
+    assert float(stationary.v[-1]) > 1.3 * float(stationary32.v[-1])
+    assert float(second.v[-1]) < float(first.v[-1])
+    assert float(stationary.mass()) == pytest.approx(1.0, abs=1e-5)
+
+
+def test_the_velocity_grid_is_exactly_symmetric(stationary32):
+    """The velocity nodes are counted from the middle: an exact ``v = 0`` node for odd ``n_v`` (its sign picks the
+    impact fold's branch for its ghost mass) and exact mirror images, however the program rounds its extents."""
+    v = np.asarray(stationary32.v)
+    assert v[(v.size - 1) // 2] == 0.0
+    np.testing.assert_array_equal(v, -v[::-1])
 
 
 @pytest.mark.parametrize("r", [0.3, 0.05])

@@ -168,7 +168,7 @@ def _scalar(name, value) -> float:
     if arr is None:
         raise ValueError(
             f"{name} is traced: give x_max and v_max in jdpim.PathIntegration explicitly "
-            "(the grid extents are static and cannot be derived from traced parameters)"
+            "(the grid extents are estimated from concrete parameter values)"
         )
     return float(arr)
 
@@ -232,7 +232,7 @@ def default_extents(scene: Scene, settings: PathIntegration) -> tuple[float, flo
     x0, v0 = float(np.max(np.abs(concrete(x0) - b))), float(np.max(np.abs(concrete(v0))))
     x_max = max(x_max, 1.5 * x0 + 0.5 * x_max) if x0 else x_max
     v_max = max(v_max, 1.5 * v0 + 0.5 * v_max) if v0 else v_max
-    return (settings.x_max or x_max), (settings.v_max or v_max)
+    return float(settings.x_max or x_max), float(settings.v_max or v_max)
 
 
 def validate(scene: Scene, settings: PathIntegration, initial, stationary: bool) -> None:
@@ -345,7 +345,8 @@ def _edge_mask(n_x: int, n_v: int, has_barrier: bool, dtype):
 
 
 def setup(scene: Scene, settings: PathIntegration, extents):
-    """``(grid, ops, weights, edge)``: the grid, its step operator, its quadrature weights and its edge mask."""
+    """``(grid, ops, weights, edge)``: the grid of ``extents`` ``(x_max, v_max)``, its step operator, its quadrature
+    weights and its edge mask."""
     dtype = scene.float_dtype
     grid = make_grid(scene.model, settings.n_x, settings.n_v, *extents, dtype)
     D = jnp.asarray(scene.noise.D, dtype)
@@ -438,7 +439,16 @@ def saved_scan(body, carry, steps, xs=None):
     return [carry if k <= 0 else jax.tree.map(lambda b, r=at[k]: b[r], rows) for k in steps]
 
 
-@functools.partial(jax.jit, static_argnames=("settings", "extents", "initial"))
+def program_settings(settings: PathIntegration) -> PathIntegration:
+    """The settings as a solve's program sees them (static: sizes, order, steps, solver limits): the extents travel
+    as values beside them, and ``leak_tol`` and ``estimate_error`` act outside it, so one program serves every
+    extent, tolerance and error estimate (a sweep over D or r compiles once)."""
+    return dataclasses.replace(
+        settings, x_max=None, v_max=None, leak_tol=PathIntegration.leak_tol, estimate_error=False
+    )
+
+
+@functools.partial(jax.jit, static_argnames=("settings", "initial"))
 def _transient(scene: Scene, settings: PathIntegration, extents, initial):
     grid, ops, weights, edge = setup(scene, settings, extents)
     dtype = grid.x.dtype
@@ -563,13 +573,11 @@ def _linear_solve(settings: PathIntegration, matvec, b, steps: int = 1):
     return jnp.where(solved, x, jnp.nan)
 
 
-@functools.partial(jax.jit, static_argnames=("settings", "extents", "law"))
+@functools.partial(jax.jit, static_argnames=("settings",))
 def _stationary(scene: Scene, settings: PathIntegration, extents, law):
     grid, ops, weights, edge = setup(scene, settings, extents)
     X, V = jnp.meshgrid(grid.x, grid.v, indexing="ij")
     centre = grid.x[0] if scene.model.has_barrier else 0.0
-    if law is None:  # a Gaussian as wide as the grid allows
-        law = (2 * ENERGY_SPAN / extents[1] ** 2, 0.0, 1.0, (extents[1] / extents[0]) ** 2)
     a_e, cubic, q, stiff = law
     H = 0.5 * (stiff * (X - centre) ** 2 + V**2)
     guess = jnp.exp(-(a_e * H + cubic * H * H) / q)  # the averaged stationary law: a close start
@@ -688,12 +696,13 @@ def _run(scene: Scene, settings: PathIntegration) -> GridResult:
 
 def _solve(scene: Scene, settings: PathIntegration, extents, stationary: bool, initial) -> GridResult:
     if not stationary:
-        return _transient(scene, settings, extents, initial)
+        return _transient(scene, program_settings(settings), extents, initial)
     try:
         law = averaged_energy_law(scene)
     except (ValueError, TypeError, jax.errors.ConcretizationTypeError):  # traced or not estimable: a Gaussian
-        law = None
-    return _stationary(scene, settings, extents, law)
+        x_max, v_max = extents  # as wide as the grid allows
+        law = (2 * ENERGY_SPAN / v_max**2, 0.0, 1.0, (v_max / x_max) ** 2)
+    return _stationary(scene, program_settings(settings), extents, law)
 
 
 def coarser(scene: Scene, settings: PathIntegration, stationary: bool, initial) -> PathIntegration:

@@ -49,7 +49,7 @@ from .._stencils import BSPLINE_VARIANCE, catmull_rom, catmull_rom_mirrored, ste
 
 @dataclasses.dataclass(frozen=True)
 class Grid:
-    """Nodes ``x_i = x_lo + i dx``, ``v_j = -v_max + j dv`` (``x_lo`` is the barrier when there is one)."""
+    """Nodes ``x_i = b + i dx`` (barrier ``b``) or ``(i - (n_x - 1) / 2) dx``, ``v_j = (j - (n_v - 1) / 2) dv``."""
 
     x: Any  # (n_x,)
     v: Any  # (n_v,)
@@ -96,18 +96,27 @@ def cardinal_areas(n: int, order: int, axis: str) -> np.ndarray:
     return out
 
 
-def make_grid(model: AbstractOscillator, n_x: int, n_v: int, x_max: float, v_max: float, dtype) -> Grid:
-    """Nodes: ``x`` in ``[b, b + x_max]`` (barrier ``b``) or ``[-x_max, x_max]``; ``v`` in ``[-v_max, v_max]``."""
+def make_grid(model: AbstractOscillator, n_x: int, n_v: int, x_max, v_max, dtype) -> Grid:
+    """Nodes: ``x`` in ``[b, b + x_max]`` (barrier ``b``) or ``[-x_max, x_max]``; ``v`` in ``[-v_max, v_max]``.
+
+    The extents are values (traced inside a solve's program, so that one program serves every extent); the
+    sizes ``n_x``, ``n_v`` set the shapes. Symmetric ranges are counted from their middle, ``v_j = (j - (n_v - 1)
+    / 2) dv``: exactly symmetric, with an exact 0 for an odd size, however the program rounds (the impact's fold
+    treats ``v < 0`` and ``v >= 0`` differently).
+    """
+    x_max, v_max = jnp.asarray(x_max, dtype), jnp.asarray(v_max, dtype)
+
+    def centred(n, dz):
+        return dz * (jnp.arange(n, dtype=dtype) - (n - 1) / 2)
+
+    dv = 2 * v_max / (n_v - 1)
     if model.has_barrier:
-        lo = jnp.asarray(model.barrier, dtype)
-        dx = jnp.asarray(x_max / (n_x - 1), dtype)
+        dx = x_max / (n_x - 1)
+        x = jnp.asarray(model.barrier, dtype) + dx * jnp.arange(n_x, dtype=dtype)
     else:
-        lo = jnp.asarray(-x_max, dtype)
-        dx = jnp.asarray(2 * x_max / (n_x - 1), dtype)
-    dv = jnp.asarray(2 * v_max / (n_v - 1), dtype)
-    x = lo + dx * jnp.arange(n_x, dtype=dtype)
-    v = -v_max + dv * jnp.arange(n_v, dtype=dtype)
-    return Grid(x, v, dx, dv)
+        dx = 2 * x_max / (n_x - 1)
+        x = centred(n_x, dx)
+    return Grid(x, centred(n_v, dv), dx, dv)
 
 
 def state_dependent(model: AbstractOscillator) -> bool:

@@ -26,6 +26,7 @@ from ..methods._path_integration import (
     check_resolution,
     coarser,
     peak_weight,
+    program_settings,
     resolved,
     saved_scan,
     setup,
@@ -97,7 +98,7 @@ def _derivative(scene, settings: PathIntegration, extents, query: FirstPassageQu
         check_noise_resolution(scene, settings, grid)
 
     def probability(values):
-        survival, _, _ = _survival(with_parameters(scene, values), settings, extents, settings.initial, keep)
+        survival, _, _ = _survival(with_parameters(scene, values), program_settings(settings), extents, keep)
         return 1.0 - survival.T
 
     values = {n: jnp.asarray(v, scene.float_dtype) for n, v in query.values.items()}
@@ -111,7 +112,7 @@ def _probability(scene, settings: PathIntegration, extents, query: FirstPassageQ
     levels = jnp.asarray(query.levels, scene.float_dtype)
     keep, node_max = _keep(query.quantity, grid.x, grid.v, levels)
     _check_levels(scene, settings, query, grid, float(node_max), which)
-    survival, defect, leak = _survival(scene, settings, extents, settings.initial, keep)
+    survival, defect, leak = _survival(scene, program_settings(settings), extents, keep)
     return 1.0 - survival.T, defect.T, leak.T, keep
 
 
@@ -170,13 +171,13 @@ def _check_levels(scene, settings: PathIntegration, query: FirstPassageQuery, gr
         )
 
 
-@functools.partial(jax.jit, static_argnames=("settings", "extents", "initial"))
-def _survival(scene, settings: PathIntegration, extents, initial, keep):
+@functools.partial(jax.jit, static_argnames=("settings",))
+def _survival(scene, settings: PathIntegration, extents, keep):
     """``(survival, defect, leak)``, each ``(L, S)``: the mass kept at every saved time for each ``keep``
     ``(L, n_x, n_v)``, the mass the steps lost at the grid's edges (put back by renormalisation), and the
-    largest mass in the outermost node rows."""
+    largest mass in the outermost node rows, on the grid of ``extents`` ``(x_max, v_max)``."""
     grid, ops, weights, edge = setup(scene, settings, extents)
-    p0, start = start_density(scene, settings, grid, weights, initial)
+    p0, start = start_density(scene, settings, grid, weights, settings.initial)
     steps = [int(round((t - start) / settings.tau)) for t in scene.save_at]
     exponents = step_exponents(scene, settings, ops, start, max(steps))
 

@@ -6,10 +6,10 @@ fixed point (one linear solve per parameter and Newton system). The result is th
 discrete solver: it has no sampling error, only the grid's discretisation error (measured in
 docs/gradients.md).
 
-The grid extents and the order of the weights are static, so they are fixed at the nominal parameters
-(where path integration also refuses what it cannot solve, before tracing) and held while the parameters
-move. The nominal density is the primal of the same forward-mode run (``has_aux``): its
-``PathIntegrationWarning`` is reported from there, with no separate nominal solve.
+The grid extents and the order of the weights are chosen from the nominal parameters (where path
+integration also refuses what it cannot solve, before tracing) and held while the parameters move. The
+nominal density is the primal of the same forward-mode run (``has_aux``): its ``PathIntegrationWarning`` is
+reported from there, with no separate nominal solve.
 """
 
 from __future__ import annotations
@@ -19,7 +19,6 @@ import warnings
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from .._scene import Scene, with_parameters
 from ..methods._base import solve
@@ -53,14 +52,11 @@ def nominal_run(scene: Scene, settings: PathIntegration, t: float):
     settings, extents = resolved(scene, settings)
     check_resolution(scene, settings, extents, point_start=settings.initial is None and not settings.stationary)
     grid = _grid(scene.model, settings.n_x, settings.n_v, *extents, scene.float_dtype)
-    x, v = np.asarray(grid.x, float), np.asarray(grid.v, float)
-    x_max = x[-1] - x[0] if scene.model.has_barrier else x[-1]
-    return scene, dataclasses.replace(settings, x_max=float(x_max), v_max=float(v[-1])), grid
+    return scene, dataclasses.replace(settings, x_max=extents[0], v_max=extents[1]), grid
 
 
-# the nodes as a solve computes them (compiled, as inside the solve's program), so that the extents read from them
-# give the derivative's run the nominal grid to the last bit
-_grid = jax.jit(make_grid, static_argnums=(1, 2, 3, 4, 5))
+# the nodes as a solve computes them (compiled, with the extents as values, as inside the solve's program)
+_grid = jax.jit(make_grid, static_argnums=(1, 2, 5))
 
 
 def grid_sensitivity(scene: Scene, settings: PathIntegration, query, nominal=None):
