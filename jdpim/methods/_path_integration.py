@@ -218,8 +218,8 @@ def default_extents(scene: Scene, settings: PathIntegration) -> tuple[float, flo
     if traced:
         raise ValueError(
             f"path integration estimates its grid extents from the parameters, but {', '.join(traced)} "
-            "is traced (differentiated or vmapped): give x_max and v_max in jdpim.PathIntegration (the grid is "
-            "static), or use jdpim.sensitivity, which fixes them at the nominal values"
+            "is traced (differentiated or vmapped): give x_max and v_max in jdpim.PathIntegration (the grid "
+            "does not move with the parameter), or use jdpim.sensitivity, which fixes them at the nominal values"
         )
     a_e, cubic, q, stiff = averaged_energy_law(scene)
     c = ENERGY_SPAN * q * peak_weight(scene, settings.tau)  # (a_e H + cubic H^2) / q = ENERGY_SPAN
