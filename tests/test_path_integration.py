@@ -95,6 +95,19 @@ def test_float32_agrees_with_float64(stationary64, stationary32):
     assert metrics.l1(np.asarray(res32.pdf("x", XG)), stationary64["pdf_x"], XG) < 1e-4
 
 
+def test_a_solve_inside_jit_rounds_as_the_direct_solve():
+    """Inside a user's ``jax.jit`` the scene and the extents are constants of the outer program; the solve keeps them
+    values, so float32 densities equal the direct solve's to rounding (folded constants moved them by 4e-5)."""
+    settings = jdpim.PathIntegration(n_x=41, n_v=161, x_max=3.0, v_max=3.0)
+
+    def pdf(D):
+        scene = jdpim.Scene(jdpim.VibroImpactOscillator(), noise=jdpim.WhiteNoise(D=D), dtype="float32")
+        return jdpim.solve(scene, settings).pdf("x", XG)
+
+    direct, inside = pdf(0.03), jax.jit(pdf)(0.03)
+    np.testing.assert_allclose(inside, direct, rtol=1e-6, atol=1e-6 * float(direct.max()))
+
+
 def test_a_sweep_over_d_or_r_compiles_no_new_solve(stationary32):
     """The grid's extents (estimated from D, r, ...) and the start law are values in one program per grid size: a
     stationary solve at another D, and a transient at another r, compile no new solve once that size ran."""

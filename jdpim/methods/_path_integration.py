@@ -348,6 +348,8 @@ def setup(scene: Scene, settings: PathIntegration, extents):
     """``(grid, ops, weights, edge)``: the grid of ``extents`` ``(x_max, v_max)``, its step operator, its quadrature
     weights and its edge mask."""
     dtype = scene.float_dtype
+    # values, never constants: a solve traced inside a user's jit rounds as the same solve called directly
+    scene, extents = jax.lax.optimization_barrier((scene, tuple(jnp.asarray(e, dtype) for e in extents)))
     grid = make_grid(scene.model, settings.n_x, settings.n_v, *extents, dtype)
     D = jnp.asarray(scene.noise.D, dtype)
     ops = step_operator(
