@@ -8,7 +8,7 @@ import pytest
 from conftest import DT_SMALL, N_SMALL, T_SMALL
 
 import jdpim
-from jdpim._engine import elementwise, locate, resolve
+from jdpim._engine import batches, elementwise, locate, resolve
 
 
 @pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64, jnp.int32])
@@ -63,8 +63,11 @@ SCENES = {
 
 
 @pytest.mark.parametrize("name", SCENES)
-def test_storing_changes_no_state(name, monkeypatch):
-    """Monte Carlo states with the values stored and with every store left out."""
+def test_storing_changes_no_state_beyond_its_last_bits(name, monkeypatch):
+    """Monte Carlo states with the values stored and with every store left out: bit for bit for one degree of
+    freedom; for several, XLA may contract a multiply-add inside a fusion that computes a value again where it does
+    not in the one that stores it, and a state's last bit moves (the impact damper: 8 of 512 values, by at most two
+    units in the last place)."""
     scene, method = SCENES[name][0](), SCENES[name][1]
     stored = np.asarray(jdpim.solve(scene, method).states)
     for module in (locate, resolve):  # every user of the stored values
@@ -72,4 +75,23 @@ def test_storing_changes_no_state(name, monkeypatch):
     jax.clear_caches()
     plain = np.asarray(jdpim.solve(scene, method).states)
     assert np.all(np.isfinite(stored))
-    np.testing.assert_array_equal(stored, plain)
+    if name == "one degree of freedom":
+        np.testing.assert_array_equal(stored, plain)
+    else:
+        np.testing.assert_allclose(stored, plain, rtol=4 * np.finfo(stored.dtype).eps, atol=0)
+
+
+@pytest.mark.parametrize("n", [2, 64, 512])
+def test_a_compact_batch_keeps_its_stored_values(n):
+    """A compact batch of a chunk of ``n`` paths has enough rows for XLA to keep each stored value as a reduction: a
+    chain of four stored values, mapped over the batch, compiles to four reductions (one row would give none)."""
+
+    def chain(x):
+        for _ in range(4):
+            x = elementwise.stored(x * x * 0.5 + jnp.sin(x))
+        return x
+
+    rows = batches.compact_rows(n)
+    assert rows >= 2
+    hlo = jax.jit(jax.vmap(chain)).lower(jnp.ones(rows)).compile().as_text()
+    assert hlo.count(" reduce(") == 4

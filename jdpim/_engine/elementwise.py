@@ -17,8 +17,8 @@ def stored(x):
     for every column of a ``(k, d)`` consumer), so the chains of a resolution (Newton iterations, the crossing
     time, the RK4 redo) are recomputed many times over. A reduction is not fused into its consumers: the exact
     ``max(x, lowest)`` over a stacked pair stores ``x`` (``jax.lax.optimization_barrier`` does not: the CPU compiler
-    removes it before fusing). Elsewhere
-    (accelerators, unmeasured) ``x`` is returned.
+    removes it before fusing). XLA folds that reduction away where its output has one element (a batch of one path),
+    so batches that store values have at least two rows. Elsewhere (accelerators, unmeasured) ``x`` is returned.
     """
     if not on_cpu():
         return x
