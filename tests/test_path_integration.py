@@ -108,6 +108,20 @@ def test_a_solve_inside_jit_rounds_as_the_direct_solve():
     np.testing.assert_allclose(inside, direct, rtol=1e-6, atol=1e-6 * float(direct.max()))
 
 
+
+def test_a_solve_inside_jit_of_a_scene_of_plain_numbers_is_the_direct_solve():
+    """A scene of plain numbers inside a user's ``jax.jit``: the extents, the stationary start law and the resolution
+    check are computed from its numbers when the solve is traced, as outside (they were staged into the outer
+    program: reading one raised ``ConcretizationTypeError``)."""
+    scene = jdpim.Scene(jdpim.VibroImpactOscillator(), noise=jdpim.WhiteNoise(D=0.03), dtype="float32")
+    settings = jdpim.PathIntegration(n_x=41, n_v=161)  # extents estimated from the scene
+
+    def pdf(x):
+        return jdpim.solve(scene, settings).pdf("x", x)
+
+    direct, inside = pdf(XG), jax.jit(pdf)(XG)
+    np.testing.assert_allclose(inside, direct, rtol=1e-6, atol=1e-6 * float(direct.max()))
+
 def test_a_sweep_over_d_or_r_compiles_no_new_solve(stationary32):
     """The grid's extents (estimated from D, r, ...) and the start law are values in one program per grid size: a
     stationary solve at another D, and a transient at another r, compile no new solve once that size ran."""

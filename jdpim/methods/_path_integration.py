@@ -173,6 +173,19 @@ def _scalar(name, value) -> float:
     return float(arr)
 
 
+def on_host(fn: Callable) -> Callable:
+    """``fn``, its operations on concrete values (a scene of plain numbers) evaluated when it is called, also inside a
+    user's ``jax.jit``, where they would be staged into the outer program and could not be read (``float``)."""
+
+    @functools.wraps(fn)
+    def evaluated(*args, **kwargs):
+        with jax.ensure_compile_time_eval():
+            return fn(*args, **kwargs)
+
+    return evaluated
+
+
+@on_host
 def averaged_energy_law(scene: Scene) -> tuple[float, float, float, float]:
     """``(a_e, b, q, k)`` of the averaged stationary law ``exp(-(a_e H + b H^2) / q)``, ``H = (k x^2 + v^2) / 2``.
 
@@ -210,6 +223,7 @@ def traced_parameters(scene: Scene) -> list[str]:
     return traced
 
 
+@on_host
 def default_extents(scene: Scene, settings: PathIntegration) -> tuple[float, float]:
     """``(x_max, v_max)``: the settings' extents, or estimates from the scene (see ``PathIntegration``)."""
     if settings.x_max is not None and settings.v_max is not None:
@@ -721,6 +735,7 @@ def coarser(scene: Scene, settings: PathIntegration, stationary: bool, initial) 
     )
 
 
+@on_host
 def check_resolution(scene: Scene, settings: PathIntegration, extents, point_start: bool) -> None:
     """Warn when the grid cannot resolve the diffusion of one step or the Gaussian of a point start."""
     model, D = scene.model, concrete(scene.noise.D)
