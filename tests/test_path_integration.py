@@ -108,7 +108,6 @@ def test_a_solve_inside_jit_rounds_as_the_direct_solve():
     np.testing.assert_allclose(inside, direct, rtol=1e-6, atol=1e-6 * float(direct.max()))
 
 
-
 def test_a_solve_inside_jit_of_a_scene_of_plain_numbers_is_the_direct_solve():
     """A scene of plain numbers inside a user's ``jax.jit``: the extents, the stationary start law and the resolution
     check are computed from its numbers when the solve is traced, as outside (they were staged into the outer
@@ -121,6 +120,7 @@ def test_a_solve_inside_jit_of_a_scene_of_plain_numbers_is_the_direct_solve():
 
     direct, inside = pdf(XG), jax.jit(pdf)(XG)
     np.testing.assert_allclose(inside, direct, rtol=1e-6, atol=1e-6 * float(direct.max()))
+
 
 def test_a_sweep_over_d_or_r_compiles_no_new_solve(stationary32):
     """The grid's extents (estimated from D, r, ...) and the start law are values in one program per grid size: a

@@ -116,6 +116,8 @@ def test_batch_rows_are_a_multiple_of_eight_above_it(n, rows):
     assert batches.batch_rows(n) == rows
 
 
-@pytest.mark.parametrize("n, rows", [(10_000, 160), (14_286, 224), (5000, 80), (512, 8), (100, 2), (64, 2), (5, 2), (1, 1)])
+@pytest.mark.parametrize(
+    "n, rows", [(10_000, 160), (14_286, 224), (5000, 80), (512, 8), (100, 2), (64, 2), (5, 2), (1, 1)]
+)
 def test_compact_rows_are_a_64th_of_the_chunk(n, rows):
     assert batches.compact_rows(n) == rows
