@@ -18,7 +18,9 @@ def stored(x):
     time, the RK4 redo) are recomputed many times over. A reduction is not fused into its consumers: the exact
     ``max(x, lowest)`` over a stacked pair stores ``x`` (``jax.lax.optimization_barrier`` does not: the CPU compiler
     removes it before fusing). XLA folds that reduction away where its output has one element (a batch of one path),
-    so batches that store values have at least two rows. Elsewhere (accelerators, unmeasured) ``x`` is returned.
+    so batches that store values have at least two rows. A tangent is stored too, by a sum with zero (linear, so that
+    reverse mode transposes it): the reference scene's reverse-mode program at 64 paths compiles in 4.1 s instead of
+    7.0 s. Elsewhere (accelerators, unmeasured) ``x`` is returned.
     """
     if not on_cpu():
         return x
@@ -28,7 +30,14 @@ def stored(x):
 
 @stored.defjvp
 def _stored_jvp(primals, tangents):
-    return stored(primals[0]), tangents[0]
+    return stored(primals[0]), _stored_linear(tangents[0])
+
+
+def _stored_linear(t):
+    """A tangent stored as ``stored`` stores a value, by a linear reduction (so that reverse mode transposes it)."""
+    if not on_cpu() or not jnp.issubdtype(t.dtype, jnp.floating):
+        return t
+    return jnp.sum(jnp.stack([t, jnp.zeros_like(t)]), axis=0)
 
 
 def pick(a, j):
