@@ -115,4 +115,6 @@ def test_tangents_are_stored_with_their_values():
             x = x * x * 0.5 + jnp.sin(x)
         return x
 
-    np.testing.assert_allclose(jax.grad(lambda x: jnp.sum(chain(x)))(x), jax.grad(lambda x: jnp.sum(plain(x)))(x), rtol=1e-6)
+    np.testing.assert_allclose(
+        jax.grad(lambda x: jnp.sum(chain(x)))(x), jax.grad(lambda x: jnp.sum(plain(x)))(x), rtol=1e-6
+    )
