@@ -33,9 +33,8 @@ Only the crossing paths do the impact work, gathered into small batches, each pa
 batch's small arrays and scattered back; the loops have static trip counts and skip their iterations (``lax.cond``)
 once no path is pending, so the resolution is traced once whatever ``max_impacts``, and a step without any crossing
 skips all of it. Compact batches of up to ``ceil(n / 64)`` crossing paths, in order, serve a step until none is
-left. A chunk of ``WIDE_CHUNK`` paths or more has a first batch of up
-to ``n / 16`` crossing paths: an accelerator's (where every branch costs a read by the host) in every step without
-branches, a CPU's in the steps where more than ``n / 128`` paths cross (compact batches in the others). The
+left. An accelerator's chunk of ``WIDE_CHUNK`` paths or more (where every branch costs a read by the host) has a
+first batch of up to ``n / 16`` crossing paths in every step, without branches. The
 ``"mirror"`` method is the first-order "flip after the step" rule, kept for comparison.
 
 The parts, one module each: :mod:`.settings` (the static settings :class:`ImpactRule` and :class:`Substeps`),
