@@ -2,8 +2,8 @@
 the states of the compact batches that smaller chunks, and every chunk on a CPU, use: the threshold is lowered, and
 the CPU taken for an accelerator, so that small chunks take it here."""
 
-import os
-import pathlib
+import logging
+import re
 
 import jax
 import numpy as np
@@ -76,23 +76,43 @@ def test_wide_resolution_gives_the_lane_states(name, monkeypatch, lane_states):
     np.testing.assert_allclose(wide, lanes, rtol=0, atol=1e-5)
 
 
+class _CacheKeys(logging.Handler):
+    """The persistent compilation cache's keys of the runs (``jit_simulate``) compiled or loaded while attached."""
+
+    def __init__(self):
+        super().__init__(logging.DEBUG)
+        self.keys = []
+
+    def emit(self, record):
+        found = re.search(r"cache (?:hit|miss) for 'jit_simulate' with key '(\S+)'", record.getMessage(), re.I)
+        if found:
+            self.keys.append(found.group(1))
+
+
 def test_a_cpu_serves_every_chunk_by_compact_batches(monkeypatch):
     """On a CPU a chunk of ``WIDE_CHUNK`` paths or more is served by compact batches too (faster there than a wide
     batch, also in the impact damper's crowded steps): with the threshold lowered below the chunk, where every path
-    crosses in the first step, the run is the same program (the session's compilation cache, conftest.py, gains no
-    entry) and gives the same states bit for bit."""
+    crosses in the first step, the run is the same program (the same key in the session's compilation cache,
+    conftest.py) and gives the same states bit for bit."""
     scene = SCENES["all cross at once"]()
-    cache = pathlib.Path(os.environ["JAX_COMPILATION_CACHE_DIR"])
+    logger, handler = logging.getLogger("jax"), _CacheKeys()
+    level = logger.level
+    logger.addHandler(handler)
+    logger.setLevel(logging.DEBUG)
 
     def states():
+        jax.clear_caches()  # the threshold is read when the step is traced
         return np.asarray(jdpim.solve(scene, jdpim.MonteCarlo(n_samples=256, seed=3, chunk_size=256)).states)
 
-    default = states()
-    entries = len(list(cache.iterdir()))
-    monkeypatch.setattr(batches, "WIDE_CHUNK", 64)
-    jax.clear_caches()  # the threshold is read when the step is traced
-    np.testing.assert_array_equal(states(), default)
-    assert len(list(cache.iterdir())) == entries
+    try:
+        default = states()
+        monkeypatch.setattr(batches, "WIDE_CHUNK", 64)
+        lowered = states()
+    finally:
+        logger.removeHandler(handler)
+        logger.setLevel(level)
+    np.testing.assert_array_equal(lowered, default)
+    assert len(handler.keys) == 2 and handler.keys[0] == handler.keys[1], handler.keys
 
 
 @pytest.mark.parametrize("name", ["all cross at once", "impact damper"])
