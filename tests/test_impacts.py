@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 import jdpim
-from jdpim._engine.batches import first_in_lanes
+from jdpim._engine.batches import compact_depth, compact_rows, first_in_lanes, pending_in_order
 from jdpim._engine.locate import locate_crossing
 from jdpim._engine.resolve import resolve_one
 from jdpim._engine.sticking import departure
@@ -241,3 +241,24 @@ def test_a_batch_crossing_together_matches_its_paths_alone():
         alone, _ = run_paths(model, ImpactRule(), 0.25, 12.0, x0, v0, save_every=1)
         together, _ = run_paths(model, ImpactRule(), 0.25, 12.0, np.tile(x0, 40), np.tile(v0, 40), save_every=1)
     np.testing.assert_allclose(together, np.tile(alone, (40, 1, 1)), rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 8, 31, 32, 33, 64, 100])
+def test_the_tree_of_compact_batches_serves_every_step(n):
+    """However the crossing paths of a step lie, ``2**compact_depth(n)`` compact batches resolve them all; a chunk of
+    at most two paths takes one batch."""
+    pick = jax.jit(pending_in_order, static_argnums=1)
+    patterns = {
+        "every path": np.ones(n, bool),
+        "one full run": np.arange(n) < 32,
+        "every other path": np.arange(n) % 2 == 0,
+        "the last path of each run": np.arange(n) % 32 == 31,
+    }
+    for name, todo in patterns.items():
+        todo, count = todo.copy(), 0
+        while todo.any():
+            idx = np.asarray(pick(jnp.asarray(todo), compact_rows(n)))
+            todo[idx[idx < n]] = False
+            count += 1
+        assert count <= 2 ** compact_depth(n), name
+    assert (compact_depth(n) == 0) == (n <= 2)

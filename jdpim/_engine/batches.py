@@ -240,9 +240,12 @@ def compact(eng: Engine, packing: Packing, columns, carry):
 
 def compact_depth(n: int) -> int:
     """Depth of the :func:`tree` of compact batches that serves any step of ``n`` paths. A batch takes
-    :func:`compact_rows` paths, or else every run's first two (:func:`pending_in_order`), which empties every run
-    within ``PICK_RUN / 2`` such batches: ``n // rows + PICK_RUN / 2`` batches serve all."""
-    return (n // compact_rows(n) + PICK_RUN // 2 - 1).bit_length()
+    :func:`compact_rows` paths (at most ``n // rows`` such batches), or else every run's first two
+    (:func:`pending_in_order`), which empties every run, of at most ``min(n, PICK_RUN)`` paths, within
+    ``ceil(min(n, PICK_RUN) / 2)`` such batches; one batch takes a chunk of at most two paths."""
+    if n <= 2:
+        return 0
+    return (n // compact_rows(n) + -(-min(n, PICK_RUN) // 2) - 1).bit_length()
 
 
 def resolve_crossings(eng: Engine, y0, tau0, y1, e, rand, h, held=None, force=None, departs=None):
