@@ -313,6 +313,9 @@ def pad_rows(rows, pad: int):
 
 def _simulate(scene: Scene, rows, layout=None, *, kind: str, chunk_size: int, track=None):
     SamplingMethod.named(kind)  # an unknown kind fails here, in one line
+    # a chunk of one path compiles to code of its own, whose last bits differ: it runs with a padding path instead,
+    # so that a path's states do not depend on the chunks (chunk_size=1, or one path per device)
+    chunk_size = max(chunk_size, 2)
     n = rows.shape[0]
     pad = (-n) % chunk_size
     padded = pad_rows(rows, pad)
