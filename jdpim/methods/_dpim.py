@@ -34,7 +34,7 @@ class DPIM(SamplingMethod):
         chunk_size: most paths per chunk (each device's paths are split into equal chunks no larger), or
             ``None`` for a memory-based default.
         devices: devices to split the points over (``None``: every local device); the states are the
-            same whatever the devices.
+            same whatever the devices, to rounding (docs/speed.md).
         progress: progress line on stderr (``None``: only for runs of more than one block of paths).
 
     ``solve`` returns a :class:`jdpim.Result` with ``weights = P_q``; its ``states`` are sharded over

@@ -23,7 +23,8 @@ class MonteCarlo(SamplingMethod):
 
     Args:
         n_samples: number of sample paths (>= 2).
-        seed: PRNG seed (>= 0); the same seed gives the same states whatever ``chunk_size`` and ``devices``.
+        seed: PRNG seed (>= 0); the same seed gives the same paths whatever ``chunk_size`` and ``devices``, to
+            rounding (chunks of other sizes may resolve impacts in batches of other widths: docs/speed.md).
         chunk_size: most paths per chunk (each device's paths are split into equal chunks no larger), or
             ``None`` for a memory-based default.
         devices: devices to split the samples over (``None``: every local device).
