@@ -24,7 +24,7 @@ NOTEBOOKS = sorted((pathlib.Path(__file__).parents[1] / "notebooks").glob("*.ipy
 SLOW = {
     "design": "test_design",
     "pounding": "test_pounding, test_fragility",
-    "reliability": "test_first_passage_pi::test_agrees_with_monte_carlo, test_first_passage",
+    "reliability": "test_first_passage_pi::test_elastic_linear_exact_bounds, test_first_passage",
     "sensitivities": "test_gradients, test_sensitivity_estimators",
 }
 COLAB = "https://colab.research.google.com/github/jdpim/jdpim/blob/main/notebooks/"
