@@ -32,6 +32,12 @@ def test_solve_reproduces_the_shorthands_bit_for_bit(scene, results):
     np.testing.assert_array_equal(results["dpim"].states, jdpim.dpim(scene, N_SMALL).states)
     np.testing.assert_array_equal(results["monte_carlo"].states, jdpim.monte_carlo(scene, N_SMALL, seed=3).states)
     np.testing.assert_array_equal(results["path_integration"].density, jdpim.path_integration(scene, PI).density)
+
+
+# slow: the default tier checks path_integration(...) as solve(...) in the test above (one code path), and a
+# stationary run's times in path_integration's doctest (jdpim/methods/_path_integration.py)
+@pytest.mark.slow
+def test_solve_reproduces_the_stationary_shorthand_bit_for_bit(scene):
     stationary = jdpim.solve(scene, jdpim.PathIntegration(n_x=61, n_v=121, tau=0.1, stationary=True))
     np.testing.assert_array_equal(stationary.density, jdpim.path_integration(scene, PI, stationary=True).density)
     assert stationary.times == (float("inf"),)

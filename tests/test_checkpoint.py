@@ -82,6 +82,7 @@ def test_monte_carlo_resumes_bit_for_bit(monkeypatch, tmp_path):
     assert_same(out, whole)
 
 
+@pytest.mark.slow  # the default tier resumes blocks of chunks of paths in test_monte_carlo_resumes_bit_for_bit
 def test_dpim_resumes_bit_for_bit(monkeypatch, tmp_path):
     path = tmp_path / "dpim"
     method = jdpim.DPIM(n_points=48, chunk_size=2)

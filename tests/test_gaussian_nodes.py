@@ -57,7 +57,10 @@ def test_dpim_refuses_and_bad_settings_fail_in_one_line():
         jdpim.Scene(jdpim.VibroImpactOscillator(), excitation="nodes")
 
 
-def test_each_method_takes_its_own_forcing_where_the_scene_leaves_it():
+# slow: the default tier runs a method on its own forcing in the "mc" cell (one code path for both methods,
+# jdpim.methods._paths.excitation_of) and checks DPIM's own forcing in the assertions before the runs
+@pytest.mark.parametrize("name", ["mc", pytest.param("dpim", marks=pytest.mark.slow)])
+def test_each_method_takes_its_own_forcing_where_the_scene_leaves_it(name):
     """``Scene(excitation=None)``, the default: Monte Carlo runs on Gaussian nodes and DPIM on the default spectral
     representation, giving the states of those forcings named explicitly, bit for bit."""
     scene = jdpim.Scene(jdpim.VibroImpactOscillator(), noise=jdpim.WhiteNoise(D=0.03), t_end=T_SMALL, dt=DT_SMALL)
@@ -66,13 +69,12 @@ def test_each_method_takes_its_own_forcing_where_the_scene_leaves_it():
     assert jdpim.DPIM().excitation(scene) == jdpim.DPIM.default_excitation == jdpim.SpectralRepresentation()
     spectral = scene.replace(excitation=jdpim.SpectralRepresentation())
     assert jdpim.MonteCarlo().excitation(spectral) == jdpim.SpectralRepresentation()
-    mc = jdpim.MonteCarlo(n_samples=N_SMALL, seed=3)
-    runs = {
-        "mc": (jdpim.solve(scene, mc), jdpim.solve(scene.replace(excitation=NODES), mc)),
-        "dpim": (jdpim.solve(scene, jdpim.DPIM(n_points=N_SMALL)), jdpim.solve(spectral, jdpim.DPIM(n_points=N_SMALL))),
-    }
-    for a, b in runs.values():
-        np.testing.assert_array_equal(np.asarray(a.states), np.asarray(b.states))
+    method, explicit = {
+        "mc": (jdpim.MonteCarlo(n_samples=N_SMALL, seed=3), scene.replace(excitation=NODES)),
+        "dpim": (jdpim.DPIM(n_points=N_SMALL), spectral),
+    }[name]
+    a, b = jdpim.solve(scene, method), jdpim.solve(explicit, method)
+    np.testing.assert_array_equal(np.asarray(a.states), np.asarray(b.states))
 
 
 def test_cpu_chunks_with_the_noise_drawn_inside_the_steps_are_large():

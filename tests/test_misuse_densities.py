@@ -79,6 +79,11 @@ def damper():
     return jdpim.solve(scene, jdpim.MonteCarlo(n_samples=2000, seed=0))
 
 
+# slow: an end-to-end repeat of what the default tier checks in test_held_paths_are_atoms_not_density (the gap's
+# bounds from the damper's constraints, atoms, the mass inside), test_two_sided_kde_recovers_a_known_density (the
+# reflected kernel at both walls) and, for a solved damper's gap bounded by its constraints, in
+# test_scenefile_mdof.py::test_run_stores_every_coordinate_and_equals_solve_on_the_scene_built_by_hand
+@pytest.mark.slow
 def test_damper_relative_displacement_is_bounded_and_matches_a_histogram(damper):
     """The reproducer of issue 44: the density of x2 - x1 holds its mass inside [-c, c] (a kernel without the
     second wall held 0.81-0.85), and away from the walls (3 bandwidths) matches a histogram of 40 bins within 4

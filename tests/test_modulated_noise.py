@@ -54,6 +54,9 @@ def test_monte_carlo_variance_follows_the_lyapunov_equation(scene, exact, excita
     assert exact[:, 0].argmax() not in (0, len(TIMES) - 1)  # the variance rises and decays within the record
 
 
+# slow: the default tier checks DPIM's variances under a Shinozuka-Sato envelope against the Lyapunov equation, within
+# their replicate spread, in test_earthquakes.py::test_dpim_variances_within_their_replicate_spread
+@pytest.mark.slow
 def test_dpim_variance_within_its_replicate_spread(scene, exact):
     """The mean variance of 4 randomised DPIM replicates lies within 3 standard deviations of one replicate (the
     error bar of one run) of the exact one. Their mean's own standard error is not a bound: the point sets share a

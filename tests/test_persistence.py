@@ -340,9 +340,15 @@ def test_to_xarray_labels_every_array(tmp_path, monkeypatch):
         res.to_xarray()
 
 
+@pytest.mark.slow
 def test_the_docs_examples_run(tmp_path, monkeypatch):
     """The code blocks of docs/persistence.md, in order, in a fresh folder (all but the cluster job's script, a run
-    of 10^8 paths)."""
+    of 10^8 paths).
+
+    slow: end-to-end repeats of what the default tier checks in test_result_round_trip_is_exact (save, load, the
+    metadata), test_files_of_other_versions_warn_or_fail_in_one_line (the file's JSON record) and
+    test_checkpoint.py::test_monte_carlo_resumes_bit_for_bit / test_first_passage_resumes_bit_for_bit (checkpoints
+    of Monte Carlo and first passage)."""
     page = pathlib.Path(__file__).parent.parent / "docs" / "persistence.md"
     blocks = re.findall(r"```python\n(.*?)```", page.read_text(), flags=re.S)
     blocks = [code for code in blocks if not code.startswith("# reference.py")]

@@ -80,6 +80,7 @@ def test_run_stores_every_coordinate_and_equals_solve_on_the_scene_built_by_hand
     joint = (arrays["x1_grid_joint"], arrays["x2_grid_joint"])
     for name, method in (("dpim", jdpim.DPIM(n_points=32)), ("monte_carlo", jdpim.MonteCarlo(n_samples=64, seed=0))):
         res = jdpim.solve(scene, method)
+        assert res.bounds(lambda s: s[1] - s[0]) == pytest.approx((-0.1, 0.1))  # the gap, from the constraints
         for i, t in enumerate(scene.save_at):
             for c in COORDINATES:
                 grid = arrays[f"{c}_grid"]

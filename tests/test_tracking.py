@@ -30,7 +30,10 @@ class RunningMinimum(AbstractTracked):
 MC = jdpim.MonteCarlo(n_samples=64, seed=2)  # one set of paths for every test: compiled once
 
 
-@pytest.mark.parametrize("method", [MC, jdpim.DPIM(n_points=64)])
+# slow: the default tier checks a statistic of one's own along the paths in the MC cell, and a statistic tracked
+# along DPIM's paths (the running maximum, weighted) in
+# test_first_passage::test_probabilities_grow_with_time_fall_with_the_level_and_carry_binomial_errors
+@pytest.mark.parametrize("method", [MC, pytest.param(jdpim.DPIM(n_points=64), marks=pytest.mark.slow)])
 def test_a_statistic_of_ones_own_runs_through_monte_carlo_and_dpim(method):
     tracked = track(SCENE, method, RunningMinimum())
     states = np.asarray(jdpim.solve(SCENE, method).states)

@@ -770,13 +770,18 @@ def _time(t: _Reader) -> tuple[float, float, list[float]]:
 
 def _initial(init: _Reader, model, mdof: bool):
     """``[initial]``: ``x0`` and ``v0``, numbers for one degree of freedom (``x0`` ``None`` by default: at the
-    barrier, or 0), arrays of ``n`` numbers for several (by default at rest at the model's start)."""
+    barrier, or 0), arrays of ``n`` numbers for several (``x0`` ``None`` by default: at rest at the model's start,
+    as ``jdpim.Scene`` without ``x0``, which compiles the same programs)."""
     if not mdof:
         return init.number("x0", NONE, allow_none=True), init.number("v0", 0.0)
-    start = list(model.start or (0.0,) * model.dimension)  # the model's start: 0, or 1 for a harmonic filter
-    return tuple(
-        init.vector(key, model.dimension, default) for key, default in (("x0", start), ("v0", [0.0] * len(start)))
-    )
+    n = model.dimension
+    return (init.vector("x0", n) if "x0" in init.table else None), init.vector("v0", n, [0.0] * n)
+
+
+def _start(model) -> list[float]:
+    """Where the paths of several degrees of freedom start without ``x0``: the model's start (0, or 1 for a
+    harmonic filter)."""
+    return list(model.start or (0.0,) * model.dimension)
 
 
 def _methods(me: _Reader) -> tuple[tuple[Method, ...], str, dict]:
@@ -900,7 +905,7 @@ def load(path) -> SceneFile:
         "model": model_table,
         "noise": noise_table,
         "time": {"t_end": t_end, "dt": dt, "save_at": list(scene.save_at)},
-        "initial": {"x0": NONE if x0 is None else x0, "v0": v0},
+        "initial": {"x0": x0 if x0 is not None else _start(model) if mdof else NONE, "v0": v0},
         "method": method_table,
         "output": output_table,
         **question_tables,
