@@ -247,8 +247,9 @@ def test_transient_gradient_through_scan():
 
 
 def test_too_coarse_grid_is_reported():
+    """The size of the test below (its program): coarse on the default extents, small on its own."""
     with pytest.warns(jdpim.PathIntegrationWarning, match="too coarse"):
-        jdpim.path_integration(elastic("float32", save_at=(5.0,)), jdpim.PathIntegration(n_x=11, n_v=21, tau=0.1))
+        jdpim.path_integration(elastic("float32", save_at=(5.0,)), jdpim.PathIntegration(n_x=21, n_v=41, tau=0.1))
 
 
 def test_too_small_grid_is_reported():
