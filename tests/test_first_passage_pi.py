@@ -40,6 +40,11 @@ def test_reference_scene_defaults():
     assert (model.alpha, model.gamma, model.r, model.barrier) == (0.03, 0.03, 0.98, 0.0)
 
 
+# slow: the default tier checks the absorbing solver's probabilities against exact bounds (and its grid error) in
+# test_elastic_linear_exact_bounds, its forward-mode derivatives against central differences of the same solver
+# (alpha, r, D) in test_derivatives_equal_differences_of_the_same_solver, and the likelihood ratio against the exact
+# dP/dmu in test_first_passage::test_brownian_velocity_with_drift_passes_and_its_derivatives_as_exactly_known.
+@pytest.mark.slow
 def test_agrees_with_monte_carlo(reference):
     pi, mc = reference
     assert pi.method == "path_integration" and pi.probability_stderr is None and pi.times == SAVE_AT
@@ -52,6 +57,7 @@ def test_agrees_with_monte_carlo(reference):
     assert np.all(np.abs(p - p_mc)[used] <= 4 * se[used] + err[used])
 
 
+@pytest.mark.slow  # as test_agrees_with_monte_carlo: the same Monte Carlo reference run
 def test_derivative_agrees_with_the_likelihood_ratio(reference):
     """dP/dalpha by forward-mode AD through the absorbed steps against Monte Carlo's likelihood ratio (measured:
     within 1.5 standard errors at every level and time)."""
@@ -62,15 +68,27 @@ def test_derivative_agrees_with_the_likelihood_ratio(reference):
     assert np.all(np.abs(d - d_mc) <= 3 * se)
 
 
-def test_derivatives_equal_differences_of_the_same_solver():
-    """AD differentiates the discrete absorbed solver exactly: central differences of it agree (float64; a drift
-    parameter is compared with the likelihood ratio above)."""
+NAMES, NOMINAL = ("alpha", "r", "D"), {"alpha": 0.03, "r": 0.98, "D": 0.03}  # the reference scene's values
+
+
+@pytest.fixture(scope="module")
+def float64_case():
+    """``(scene, settings, levels, fp)``: a small float64 case with ``dP/dalpha``, ``dP/dr``, ``dP/dD`` (one solver
+    against itself: its programs serve both tests below)."""
     with jax.enable_x64(True):
         scene = reference_scene().replace(save_at=(10.0,), dtype="float64")
-        settings = jdpim.PathIntegration(n_x=41, n_v=81, x_max=1.6, v_max=1.6)  # small: one solver against itself
+        settings = jdpim.PathIntegration(n_x=41, n_v=81, x_max=1.6, v_max=1.6, order=4)  # r traced: order given
         levels = [0.3, 0.6]
-        fp = jdpim.first_passage(scene, "x", levels, settings, wrt=("r", "D"))
-        for name, value, h in (("r", 0.98, 1e-4), ("D", 0.03, 1e-5)):
+        return scene, settings, levels, jdpim.first_passage(scene, "x", levels, settings, wrt=NAMES)
+
+
+def test_derivatives_equal_differences_of_the_same_solver(float64_case):
+    """AD differentiates the discrete absorbed solver exactly: central differences of it agree (float64), for a
+    drift parameter, the restitution and the noise intensity."""
+    scene, settings, levels, fp = float64_case
+    with jax.enable_x64(True):
+        for name, h in (("alpha", 1e-4), ("r", 1e-4), ("D", 1e-5)):
+            value = NOMINAL[name]
             up, down = (
                 jdpim.first_passage(jdpim.with_parameters(scene, {name: value + dh}), "x", levels, settings).probability
                 for dh in (h, -h)
@@ -78,6 +96,21 @@ def test_derivatives_equal_differences_of_the_same_solver():
             np.testing.assert_allclose(fp.derivative[name], (up - down) / (2 * h), rtol=1e-5, err_msg=name)
 
 
+def test_raw_jacfwd_equals_the_derivative_of_wrt(float64_case):
+    """``jax.jacfwd`` of ``first_passage(...).probability`` by path integration, as a user writes it (parameters as
+    float64 values), gives ``FirstPassage.derivative``."""
+    scene, settings, levels, fp = float64_case
+
+    def p(values):
+        return jdpim.first_passage(jdpim.with_parameters(scene, values), "x", levels, settings).probability
+
+    with jax.enable_x64(True):
+        raw = jax.jacfwd(p)({name: np.float64(value) for name, value in NOMINAL.items()})
+    for name in NAMES:
+        np.testing.assert_allclose(raw[name], fp.derivative[name], rtol=1e-5, err_msg=name)
+
+
+@pytest.mark.slow  # test_elastic_linear_exact_bounds checks the same monotonicity in the default tier
 def test_monotone_in_time_and_level(reference):
     p = np.asarray(reference[0].probability)
     assert np.all(p >= -1e-6) and np.all(p <= 1 + 1e-6)
@@ -114,6 +147,9 @@ def test_elastic_linear_exact_bounds():
         scene = jdpim.Scene(model, noise=jdpim.WhiteNoise(D=D), t_end=10.0, dt=0.01, save_at=SAVE_AT, dtype="float64")
         fp = jdpim.first_passage(scene, "x", levels, settings)
         p, err = np.asarray(fp.probability), np.asarray(fp.grid_error)
+    assert np.all(p >= -1e-6) and np.all(p <= 1 + 1e-6)
+    assert np.all(np.diff(p, axis=0) >= -1e-6)  # later: more has passed
+    assert np.all(np.diff(p, axis=1) <= 1e-6)  # higher level: less has passed
     s, v = np.linspace(0.0, 10.0, 401)[1:], np.linspace(0.0, 3.0, 1501)
     joint = [[exact.elastic_linear_joint_pdf([lv], v, alpha, D, t)[0] for t in s] for lv in levels]
     nu = np.trapezoid(v * np.array(joint), v, axis=-1)  # (levels, times): upcrossing rate of each level
@@ -164,16 +200,3 @@ def test_several_degrees_of_freedom_refused():
     with pytest.raises(ValueError, match="needs a one-degree-of-freedom scene.*MonteCarlo") as info:
         jdpim.first_passage(scene, "x1", 0.5, jdpim.PathIntegration())
     assert "\n" not in str(info.value)
-
-
-def test_raw_jacfwd_equals_the_derivative_of_wrt():
-    """``jax.jacfwd`` of ``first_passage(...).probability`` by path integration, as a user writes it, gives
-    ``FirstPassage.derivative``."""
-    scene = reference_scene().replace(save_at=(10.0,))
-    settings = jdpim.PathIntegration(n_x=41, n_v=81, x_max=1.6, v_max=1.6, order=4)  # small: two calls, one grid
-    fp = jdpim.first_passage(scene, "x", 0.5, settings, wrt="alpha")
-
-    def p(alpha):
-        return jdpim.first_passage(jdpim.with_parameters(scene, {"alpha": alpha}), "x", 0.5, settings).probability
-
-    np.testing.assert_allclose(jax.jacfwd(p)(0.03), fp.derivative["alpha"], rtol=1e-5)

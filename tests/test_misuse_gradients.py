@@ -217,7 +217,11 @@ def _many_result(theta, rows):
 
 
 @pytest.mark.parametrize("heavy", [True, False])
-@pytest.mark.parametrize("transform", ["grad", "jacrev"])
+@pytest.mark.parametrize(
+    "transform",
+    # slow: jacrev is reverse mode along the same projections, checked with jax.grad in the default tier
+    ["grad", pytest.param("jacrev", marks=pytest.mark.slow)],
+)
 def test_many_parameters_are_checked_along_projections(transform, heavy):
     """Reverse mode over more than ``MAX_DIRECTIONS`` scalars (forward mode is checked by ``Result.pdf`` itself)."""
     from jdpim.methods._ad_guard import MAX_DIRECTIONS

@@ -200,6 +200,11 @@ def _central(f, theta, n=5, eps=1e-4):
     return np.stack(cols, axis=-1)
 
 
+# slow: the default tier checks reverse mode through the implicit stationary solve against central differences in
+# test_pi_gradients::test_grad_jacfwd_and_central_differences_agree (linear weights) and, with cubic weights (order 4),
+# against forward mode and central differences in
+# test_pi_gradients::test_adjoint_of_a_pointwise_density_converges_where_plain_bicgstab_stalled
+@pytest.mark.slow
 def test_stationary_grad_matches_central_differences():
     """Reverse mode through the implicit (custom_root) solve: one adjoint solve for all five parameters."""
     settings = jdpim.PathIntegration(n_x=41, n_v=81, x_max=2.5, v_max=2.5, tau=0.2, order=4)
@@ -242,8 +247,9 @@ def test_transient_gradient_through_scan():
 
 
 def test_too_coarse_grid_is_reported():
+    """The size of the test below (its program): coarse on the default extents, small on its own."""
     with pytest.warns(jdpim.PathIntegrationWarning, match="too coarse"):
-        jdpim.path_integration(elastic("float32", save_at=(5.0,)), jdpim.PathIntegration(n_x=11, n_v=21, tau=0.1))
+        jdpim.path_integration(elastic("float32", save_at=(5.0,)), jdpim.PathIntegration(n_x=21, n_v=41, tau=0.1))
 
 
 def test_too_small_grid_is_reported():

@@ -60,7 +60,7 @@ def _three_ways(f, p0):
     ("gamma", "r", "extent"),
     [
         (0.03, 0.1, 5.0),
-        pytest.param(0.03, 0.9, 5.0, marks=pytest.mark.slow),  # cubic weights: test_path_integration's gradient
+        pytest.param(0.03, 0.9, 5.0, marks=pytest.mark.slow),  # cubic weights: the adjoint test below
         pytest.param(0.0, 0.3, None, marks=pytest.mark.slow),
         pytest.param(0.03, 0.5, 5.0, marks=pytest.mark.slow),
         pytest.param(0.0, 0.98, 5.0, marks=pytest.mark.slow),
@@ -83,7 +83,8 @@ def test_grad_jacfwd_and_central_differences_agree(gamma, r, extent):
 
 def test_adjoint_of_a_pointwise_density_converges_where_plain_bicgstab_stalled():
     """Cells where BiCGStab on the one-step adjoint stopped at relative residual 3.6e-4 and 9.8e-2 (NaN gradients);
-    the derivative solves run on the 16-step operator (docs/path_integration.md, "Derivatives")."""
+    the derivative solves run on the 16-step operator (docs/path_integration.md, "Derivatives"). Reverse and
+    forward mode agree, and forward mode agrees with central differences (cubic weights; measured: within 2e-4)."""
     with jax.enable_x64(True):
         f = _functional(jdpim.PathIntegration(n_x=41, n_v=81, x_max=4.5, v_max=4.5, order=4))
 
@@ -92,9 +93,11 @@ def test_adjoint_of_a_pointwise_density_converges_where_plain_bicgstab_stalled()
             _, tangent = jax.linearize(f, theta)
             return jax.linear_transpose(tangent, theta)(jnp.ones(()))[0], jax.vmap(tangent)(jnp.eye(4))
 
+        value = jax.jit(f)  # the differences run the value alone: a solve without its derivatives
         for theta in ([0.03, 0.04, 0.95, 0.04], [0.06, 0.04, 0.95, 0.03]):
             rev, fwd = both(jnp.asarray(theta))
             np.testing.assert_allclose(np.asarray(rev), np.asarray(fwd), rtol=1e-6)
+            np.testing.assert_allclose(np.asarray(fwd), _central(value, np.array(theta)), rtol=1e-3)
 
 
 @pytest.mark.slow

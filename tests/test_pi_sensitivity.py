@@ -171,6 +171,11 @@ def test_joint_derivative_integrates_to_the_marginal(elastic):
         np.testing.assert_allclose(integral, marginal[name], atol=2e-3 * np.abs(marginal[name]).max())
 
 
+# slow: the default tier checks the transient derivative against the exact one in
+# test_path_integration_matches_the_exact_derivative[False], the settings picked below t = 10 in
+# test_short_horizons_pick_an_earlier_finer_start and the start's warning in
+# test_short_horizons_after_the_point_start_are_flagged
+@pytest.mark.slow
 def test_short_horizons_default_to_an_earlier_finer_start():
     """Below t = 10 the default start is t0 = 0.25 on 241 x 481 nodes (tau = 0.025); still exact for r = 1.
 
@@ -184,6 +189,14 @@ def test_short_horizons_default_to_an_earlier_finer_start():
     for name in ("alpha", "D"):
         ref = _exact_derivative(name, 2.5)
         assert np.linalg.norm(out[name] - ref) / np.linalg.norm(ref) < 1e-3, name
+
+
+def test_short_horizons_pick_an_earlier_finer_start():
+    """The settings a default call takes: t0 = 0.25 on 241 x 481 nodes below t = 10 (transient only)."""
+    from jdpim.sensitivities._path_integration import default_settings
+
+    assert default_settings(2.5) == jdpim.PathIntegration(t0=0.25, n_x=241, n_v=481, tau=0.025)
+    assert default_settings(10.0) == default_settings(2.5, stationary=True) == jdpim.PathIntegration()
 
 
 def test_one_solve_program_and_the_nominal_warnings(elastic):

@@ -56,6 +56,10 @@ def test_central_differences_on_the_level_samples_agree_with_monte_carlo(monte_c
     assert ss.n_evaluations > 1500
 
 
+# slow: further scenes of the estimators that the default tier checks against Monte Carlo on the level samples:
+# the likelihood ratio in test_likelihood_ratio_and_noise_score_agree_with_monte_carlo and central differences in
+# test_central_differences_on_the_level_samples_agree_with_monte_carlo
+@pytest.mark.slow
 def test_restitution_and_several_degrees_of_freedom():
     """Restitution (central differences on the level samples, ``step=0.1``): on the impact oscillator the
     rebound speed is ``r`` times the impact speed, so ``dP/dr > 0`` for the velocity's passage, by more than two
