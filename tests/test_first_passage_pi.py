@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 from scipy.stats import multivariate_normal
+from test_first_solve import compiled_programs
 
 import jdpim
 from jdpim import exact
@@ -98,14 +99,16 @@ def test_derivatives_equal_differences_of_the_same_solver(float64_case):
 
 def test_raw_jacfwd_equals_the_derivative_of_wrt(float64_case):
     """``jax.jacfwd`` of ``first_passage(...).probability`` by path integration, as a user writes it (parameters as
-    float64 values), gives ``FirstPassage.derivative``."""
+    Python numbers, weakly typed under ``jacfwd``), gives ``FirstPassage.derivative``, by the program that computed
+    it: no solve is compiled again."""
     scene, settings, levels, fp = float64_case
 
     def p(values):
         return jdpim.first_passage(jdpim.with_parameters(scene, values), "x", levels, settings).probability
 
-    with jax.enable_x64(True):
-        raw = jax.jacfwd(p)({name: np.float64(value) for name, value in NOMINAL.items()})
+    with jax.enable_x64(True), compiled_programs() as names:
+        raw = jax.jacfwd(p)(dict(NOMINAL))
+    assert "jit(_survival)" not in names, names
     for name in NAMES:
         np.testing.assert_allclose(raw[name], fp.derivative[name], rtol=1e-5, err_msg=name)
 

@@ -464,6 +464,19 @@ def program_settings(settings: PathIntegration) -> PathIntegration:
     )
 
 
+def typed_parameters(scene: Scene) -> Scene:
+    """``scene`` with its weakly typed array parameters (a Python number under ``jax.jacfwd`` or ``jax.grad``) in the
+    scene's float dtype, strongly typed: a derivative taken at a number and one taken at an array (``wrt=``) then
+    run one program. Python numbers, as a scene is built, stay as they are."""
+
+    def strong(leaf):
+        if isinstance(leaf, jax.Array) and jax.typeof(leaf).weak_type and jnp.issubdtype(leaf.dtype, jnp.floating):
+            return jnp.asarray(leaf, scene.float_dtype)
+        return leaf
+
+    return jax.tree.map(strong, scene)
+
+
 @functools.partial(jax.jit, static_argnames=("settings", "initial"))
 def _transient(scene: Scene, settings: PathIntegration, extents, initial):
     grid, ops, weights, edge = setup(scene, settings, extents)
@@ -712,13 +725,13 @@ def _run(scene: Scene, settings: PathIntegration) -> GridResult:
 
 def _solve(scene: Scene, settings: PathIntegration, extents, stationary: bool, initial) -> GridResult:
     if not stationary:
-        return _transient(scene, program_settings(settings), extents, initial)
+        return _transient(typed_parameters(scene), program_settings(settings), extents, initial)
     try:
         law = averaged_energy_law(scene)
     except (ValueError, TypeError, jax.errors.ConcretizationTypeError):  # traced or not estimable: a Gaussian
         x_max, v_max = extents  # as wide as the grid allows
         law = (2 * ENERGY_SPAN / v_max**2, 0.0, 1.0, (v_max / x_max) ** 2)
-    return _stationary(scene, program_settings(settings), extents, law)
+    return _stationary(typed_parameters(scene), program_settings(settings), extents, law)
 
 
 def coarser(scene: Scene, settings: PathIntegration, stationary: bool, initial) -> PathIntegration:

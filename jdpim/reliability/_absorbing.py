@@ -32,6 +32,7 @@ from ..methods._path_integration import (
     setup,
     start_density,
     step_exponents,
+    typed_parameters,
     validate,
 )
 from ..methods._pi_operator import drift_and_diffusion, make_grid
@@ -98,7 +99,9 @@ def _derivative(scene, settings: PathIntegration, extents, query: FirstPassageQu
         check_noise_resolution(scene, settings, grid)
 
     def probability(values):
-        survival, _, _ = _survival(with_parameters(scene, values), program_settings(settings), extents, keep)
+        survival, _, _ = _survival(
+            typed_parameters(with_parameters(scene, values)), program_settings(settings), extents, keep
+        )
         return 1.0 - survival.T
 
     values = {n: jnp.asarray(v, scene.float_dtype) for n, v in query.values.items()}
@@ -112,7 +115,7 @@ def _probability(scene, settings: PathIntegration, extents, query: FirstPassageQ
     levels = jnp.asarray(query.levels, scene.float_dtype)
     keep, node_max = _keep(query.quantity, grid.x, grid.v, levels)
     _check_levels(scene, settings, query, grid, float(node_max), which)
-    survival, defect, leak = _survival(scene, program_settings(settings), extents, keep)
+    survival, defect, leak = _survival(typed_parameters(scene), program_settings(settings), extents, keep)
     return 1.0 - survival.T, defect.T, leak.T, keep
 
 
