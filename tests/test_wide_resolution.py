@@ -67,7 +67,21 @@ def lane_states():
     return lanes
 
 
-@pytest.mark.parametrize("name", SCENES)
+# The default tier runs the two one-degree-of-freedom scenes (one program: crossings served by the wide batch and the
+# lanes, rounds run on every row without branches, and the restart of paths at rest). Slow: further scenes of the same
+# resolution, each a program of its own. Sub-steps from rest: the per-path step column goes through the batch's rows as
+# in test_hard_cases.py::test_substeps_are_per_path, the restart as in [at rest on the barrier]. Spectral forcing: other
+# excitation columns, packed and gathered as in [all cross at once]. Impact damper, held on the walls: several degrees
+# of freedom, whose impacts and held events the compact batches resolve by the same functions in
+# test_stored_values.py::test_storing_changes_no_state_beyond_its_last_bits[impact damper] and
+# test_mdof_sticking.py::test_held_paths_under_filtered_noise_stay_finite_admissible_and_held, and whose rounds run
+# without branches as in [all cross at once].
+FURTHER = ("sub-steps from rest", "spectral forcing", "impact damper", "held on the walls")
+
+
+@pytest.mark.parametrize(
+    "name", [pytest.param(name, marks=pytest.mark.slow) if name in FURTHER else name for name in SCENES]
+)
 def test_wide_resolution_gives_the_lane_states(name, monkeypatch, lane_states):
     scene = SCENES[name]()
     wide = _states(scene, 256, True, monkeypatch)
@@ -115,7 +129,8 @@ def test_a_cpu_serves_every_chunk_by_compact_batches(monkeypatch):
     assert len(handler.keys) == 2 and handler.keys[0] == handler.keys[1], handler.keys
 
 
-@pytest.mark.parametrize("name", ["all cross at once", "impact damper"])
+# slow: [impact damper] repeats on several degrees of freedom what [all cross at once] checks (the batches' widths)
+@pytest.mark.parametrize("name", ["all cross at once", pytest.param("impact damper", marks=pytest.mark.slow)])
 def test_compact_batches_give_the_same_states_whatever_their_rows(name, monkeypatch, lane_states):
     """A chunk's crossing paths go through compact batches of ``compact_rows`` rows (4 of 256 paths), as many as a
     step needs (64 in the first step of the first scene, where every path crosses): batches of 16 rows, fewer of
