@@ -298,10 +298,20 @@ def test_scene_checks_the_start_and_path_integration_refuses():
 def test_a_scene_of_several_degrees_of_freedom_passes_through_jit_and_lower():
     """The scene is a pytree argument: jit and AOT lowering rebuild it with tracers or placeholders as leaves."""
     scene = damper_scene()
+    back = jax.jit(lambda s: s)(scene)  # every leaf a tracer inside, an array (of JAX's dtype) out
+    assert jax.tree_util.tree_structure(back) == jax.tree_util.tree_structure(scene)
+    for a, b in zip(jax.tree_util.tree_leaves(back), jax.tree_util.tree_leaves(scene), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b, np.asarray(a).dtype))
+    assert jax.jit(lambda s: s.t_end * 2.0).lower(scene).compile()(scene) == 2.0 * scene.t_end
+
+
+@pytest.mark.slow  # the default tier solves a scene given to jit in
+# test_api.py::test_solve_and_its_results_pass_through_jit and rebuilds one of several degrees of freedom (above)
+def test_a_scene_of_several_degrees_of_freedom_solves_under_jit_as_it_does_eagerly():
+    scene = damper_scene()
     direct = jdpim.solve(scene, DAMPER_MC).states
     jitted = jax.jit(lambda s: jdpim.solve(s, DAMPER_MC).states)
     np.testing.assert_array_equal(np.asarray(jitted(scene)), np.asarray(direct))
-    assert jax.jit(lambda s: s.t_end * 2.0).lower(scene).compile()(scene) == 2.0 * scene.t_end
 
 
 def test_random_matrix_entry_gives_the_mixture_variance():
