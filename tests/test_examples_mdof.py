@@ -19,9 +19,17 @@ def admissible_and_finite(model, res):
         assert gap.min() >= -1e-5, f"a saved state violates {c}"
 
 
+# slow: the frame and the gear pair repeat on further linear systems what the impact damper checks (two constraints on
+# a relative displacement, as the gear pair's backlash); a wall on one coordinate, as the frame's, is checked in
+# test_mdof.py::test_stationary_marginals_match_the_gibbs_density[2], and frames that impact in
+# test_pounding.py::test_first_impact_is_the_first_passage_without_contact
 @pytest.mark.parametrize(
     "model",
-    [jdpim.impact_damper(r=0.3), jdpim.pounding_frame(n_storeys=3, gap=0.05), jdpim.gear_pair(backlash=0.02)],
+    [
+        jdpim.impact_damper(r=0.3),
+        pytest.param(jdpim.pounding_frame(n_storeys=3, gap=0.05), marks=pytest.mark.slow),
+        pytest.param(jdpim.gear_pair(backlash=0.02), marks=pytest.mark.slow),
+    ],
     ids=["impact_damper", "pounding_frame", "gear_pair"],
 )
 def test_examples_run_finite_and_admissible(model):

@@ -49,7 +49,8 @@ def exact_marginals(n, grids):
     return out
 
 
-@pytest.mark.parametrize("n", [2, 3])
+# slow: n = 3 repeats the check of n = 2 (a wall and a constraint between two masses) on a third mass
+@pytest.mark.parametrize("n", [2, pytest.param(3, marks=pytest.mark.slow)])
 def test_stationary_marginals_match_the_gibbs_density(n):
     """Linear M, C, K with B D B^T = theta C and elastic constraints: p ~ exp(-(v^T M v + q^T K q) / (2 theta)) on the
     admissible set. Monte Carlo, 6000 paths pooled over 13 times in [30, 60] s (relaxation time 2.5 s): every
@@ -118,37 +119,54 @@ def test_impacts_conserve_momentum_and_elastic_ones_energy(r):
                 assert np.mean(energy[:, -1] < 0.999 * e0) > 0.5
 
 
+A, G, R = 0.03, 0.03, 0.98
+REFERENCE_AS_MDOF = jdpim.MDOFOscillator(
+    mass=[[1.0]],
+    gains=[[1.0]],
+    damping=[[A]],
+    stiffness=[[1.0]],
+    force=lambda q, v, p: -G * v**3,
+    constraints=(jdpim.Barrier((1.0,), 0.0, R),),
+    names=("x",),
+)
+
+
+def reference_scene():
+    """The reference oscillator from x0 = 0.5 to t = 10 s in float64 (built inside ``jax.enable_x64``)."""
+    return jdpim.Scene(
+        jdpim.VibroImpactOscillator(alpha=A, gamma=G, r=R),
+        noise=jdpim.WhiteNoise(D=0.03),
+        t_end=10.0,
+        dt=0.01,
+        save_at=(2.0, 10.0),
+        x0=0.5,
+        dtype="float64",
+    )
+
+
 def test_one_degree_of_freedom_as_mdof_reproduces_the_reference_scene():
     """The reference oscillator written as an MDOFOscillator (same seed): the same paths to rounding in float64
-    (measured max 2e-10 at t = 10 s from x0 = 0.5; only the order of the force terms differs), and the same
-    likelihood-ratio derivatives of its first passage."""
-    a, g, r = 0.03, 0.03, 0.98
-    mdof = jdpim.MDOFOscillator(
-        mass=[[1.0]],
-        gains=[[1.0]],
-        damping=[[a]],
-        stiffness=[[1.0]],
-        force=lambda q, v, p: -g * v**3,
-        constraints=(jdpim.Barrier((1.0,), 0.0, r),),
-        names=("x",),
-    )
+    (measured max 2e-10 at t = 10 s from x0 = 0.5; only the order of the force terms differs)."""
+    mdof = REFERENCE_AS_MDOF
     assert mdof.coordinates == ("x", "v")
     with jax.enable_x64(True):
-        ref = jdpim.Scene(
-            jdpim.VibroImpactOscillator(alpha=a, gamma=g, r=r),
-            noise=jdpim.WhiteNoise(D=0.03),
-            t_end=10.0,
-            dt=0.01,
-            save_at=(2.0, 10.0),
-            x0=0.5,
-            dtype="float64",
-        )
+        ref = reference_scene()
         method = jdpim.MonteCarlo(n_samples=300, seed=0)
         one, many = jdpim.solve(ref, method), jdpim.solve(ref.replace(model=mdof), method)
         assert np.max(np.abs(np.asarray(one.states) - np.asarray(many.states))) < 1e-8
         grid = np.linspace(0, 2, 21)
         np.testing.assert_allclose(many.pdf("x", grid, 10.0), one.pdf("x", grid, 10.0), atol=1e-8)
-        # the likelihood ratio (the default of first passage) of alpha, C[0,0] as MDOF: the same scores
+
+
+@pytest.mark.slow  # the default tier checks the likelihood ratio of damping[0,0] of several degrees of freedom against
+# the exact derivative (test_likelihood_ratio_of_several_degrees_of_freedom_matches_the_exact_derivative), and that of
+# a first passage (test_first_passage.py::test_brownian_velocity_with_drift_passes_and_its_derivatives_as_exactly_known)
+def test_one_degree_of_freedom_as_mdof_gives_the_likelihood_ratio_of_the_reference_scene():
+    """The likelihood ratio (the default of first passage) of alpha, and of C[0,0] of the reference oscillator written
+    as an MDOFOscillator (same seed): the same scores, hence the same derivatives and standard errors."""
+    mdof = REFERENCE_AS_MDOF
+    with jax.enable_x64(True):
+        ref, method = reference_scene(), jdpim.MonteCarlo(n_samples=300, seed=0)
         fp_one = jdpim.first_passage(ref, "x", 1.0, method, wrt="alpha")
         fp_many = jdpim.first_passage(ref.replace(model=mdof), "x", 1.0, method, wrt="damping[0,0]")
         np.testing.assert_allclose(fp_many.derivative["damping[0,0]"], fp_one.derivative["alpha"], rtol=1e-6)
@@ -194,7 +212,14 @@ def test_slow_impacts_mirrored_trade_a_little_accuracy_for_time():
     assert np.all(np.abs(gap) <= 0.1 + 1e-6)
 
 
-def test_hard_cases_stay_finite_and_admissible():
+# slow: DPIM runs its paths through the steps of the Monte Carlo cell, from other inputs (DPIM on several degrees of
+# freedom: test_scenefile_mdof.py::test_run_stores_every_coordinate_and_equals_solve_on_the_scene_built_by_hand)
+@pytest.mark.parametrize(
+    "method",
+    [jdpim.MonteCarlo(n_samples=500, seed=0), pytest.param(jdpim.DPIM(n_points=300), marks=pytest.mark.slow)],
+    ids=["monte_carlo", "dpim"],
+)
+def test_hard_cases_stay_finite_and_admissible(method):
     """An impact damper: a light mass (0.05) in a clearance of +-0.05 around a primary mass, r = 0.3 (chattering),
     stiff coupling (k = 400 on the light mass: h omega = 0.9 at dt = 0.01), a wall hit in the same steps: finite
     states, no constraint violated at any saved time, by Monte Carlo and DPIM."""
@@ -208,13 +233,12 @@ def test_hard_cases_stay_finite_and_admissible():
     model = jdpim.MDOFOscillator(mass=M, gains=[[1.0], [0.0]], damping=0.02 * M, stiffness=K, constraints=constraints)
     scene = jdpim.Scene(model, noise=jdpim.WhiteNoise(D=0.05), t_end=20.0, dt=0.01, save_at=tuple(range(1, 21)))
     cons = model.stacked_constraints()
-    for method in (jdpim.MonteCarlo(n_samples=500, seed=0), jdpim.DPIM(n_points=300)):
-        res = jdpim.solve(scene, method)
-        states = np.asarray(res.states)
-        assert np.all(np.isfinite(states))
-        c = states[..., :2] @ cons.normal.T - np.asarray(cons.position)
-        assert c.min() >= -1e-6
-        assert res.coordinates == ("x1", "x2", "v1", "v2")
+    res = jdpim.solve(scene, method)
+    states = np.asarray(res.states)
+    assert np.all(np.isfinite(states))
+    c = states[..., :2] @ cons.normal.T - np.asarray(cons.position)
+    assert c.min() >= -1e-6
+    assert res.coordinates == ("x1", "x2", "v1", "v2")
 
 
 BAD = {
@@ -274,10 +298,20 @@ def test_scene_checks_the_start_and_path_integration_refuses():
 def test_a_scene_of_several_degrees_of_freedom_passes_through_jit_and_lower():
     """The scene is a pytree argument: jit and AOT lowering rebuild it with tracers or placeholders as leaves."""
     scene = damper_scene()
+    back = jax.jit(lambda s: s)(scene)  # every leaf a tracer inside, an array (of JAX's dtype) out
+    assert jax.tree_util.tree_structure(back) == jax.tree_util.tree_structure(scene)
+    for a, b in zip(jax.tree_util.tree_leaves(back), jax.tree_util.tree_leaves(scene), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b, np.asarray(a).dtype))
+    assert jax.jit(lambda s: s.t_end * 2.0).lower(scene).compile()(scene) == 2.0 * scene.t_end
+
+
+@pytest.mark.slow  # the default tier solves a scene given to jit in
+# test_api.py::test_solve_and_its_results_pass_through_jit and rebuilds one of several degrees of freedom (above)
+def test_a_scene_of_several_degrees_of_freedom_solves_under_jit_as_it_does_eagerly():
+    scene = damper_scene()
     direct = jdpim.solve(scene, DAMPER_MC).states
     jitted = jax.jit(lambda s: jdpim.solve(s, DAMPER_MC).states)
     np.testing.assert_array_equal(np.asarray(jitted(scene)), np.asarray(direct))
-    assert jax.jit(lambda s: s.t_end * 2.0).lower(scene).compile()(scene) == 2.0 * scene.t_end
 
 
 def test_random_matrix_entry_gives_the_mixture_variance():

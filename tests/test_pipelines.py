@@ -58,6 +58,9 @@ def test_joint_pdf_matches_exact(elastic_dpim):
     assert metrics.l1(p, ref, (xg, vg)) < 0.14  # measured 0.105 (0.118 at t = 10)
 
 
+@pytest.mark.slow  # the default tier checks seeds and chunks (same tolerance) in
+# test_gaussian_nodes.py::test_runs_are_deterministic_independent_of_chunks_and_share_the_random_parameters, and chunks
+# of paths that keep impacting (bit for bit) in test_a_chunk_of_one_path_gives_the_states_of_larger_chunks
 def test_monte_carlo_is_deterministic_and_chunk_independent(elastic_scene):
     a = jdpim.monte_carlo(elastic_scene.replace(t_end=10.0, save_at=(10.0,)), n_samples=64, seed=5, chunk_size=64)
     b = jdpim.monte_carlo(elastic_scene.replace(t_end=10.0, save_at=(10.0,)), n_samples=64, seed=5, chunk_size=24)

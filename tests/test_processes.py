@@ -23,13 +23,17 @@ np.savez(sys.argv[3], process_count=jax.process_count(), **t.compute())
 
 
 def compute() -> dict:
-    """What both processes and this one compute: an odd number of Monte Carlo paths (the last share padded)."""
+    """What both processes and this one compute: an odd number of Monte Carlo paths (the last share padded). The
+    chunks are those of a process's share (76 of its 151 paths, 100 of its 100 points), so that each process loads the
+    programs this one compiled first (the session's compilation cache, conftest.py)."""
     scene = jdpim.Scene(
         jdpim.VibroImpactOscillator(), noise=jdpim.WhiteNoise(D=0.03), t_end=2.0, dt=0.01, save_at=(1.0, 2.0)
     )
-    mc = jdpim.solve(scene, jdpim.MonteCarlo(n_samples=301, seed=0, progress=False))
-    dp = jdpim.solve(scene, jdpim.DPIM(n_points=200, progress=False))
-    fp = jdpim.first_passage(scene, "x", [0.2, 0.4], jdpim.MonteCarlo(n_samples=301, seed=1, progress=False))
+    mc = jdpim.solve(scene, jdpim.MonteCarlo(n_samples=301, seed=0, chunk_size=76, progress=False))
+    dp = jdpim.solve(scene, jdpim.DPIM(n_points=200, chunk_size=100, progress=False))
+    fp = jdpim.first_passage(
+        scene, "x", [0.2, 0.4], jdpim.MonteCarlo(n_samples=301, seed=1, chunk_size=76, progress=False)
+    )
     grid = np.linspace(0.0, 1.0, 31)
     return {
         "mc": np.asarray(mc.states),
@@ -48,6 +52,7 @@ def _free_port() -> int:
 
 
 def test_two_processes_give_the_results_of_one(tmp_path):
+    one = compute()  # first: the processes then load its programs
     (tmp_path / "worker.py").write_text(WORKER)
     port, here = _free_port(), str(__import__("pathlib").Path(__file__).parent)
     procs = [
@@ -61,7 +66,6 @@ def test_two_processes_give_the_results_of_one(tmp_path):
     ]
     logs = [p.communicate(timeout=300)[0] for p in procs]
     assert all(p.returncode == 0 for p in procs), logs
-    one = compute()
     for i in range(2):
         with np.load(tmp_path / f"{i}.npz") as got:
             assert int(got["process_count"]) == 2

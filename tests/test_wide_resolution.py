@@ -22,8 +22,8 @@ def _states(scene, n, wide, monkeypatch, **method):
     return np.asarray(res.states)
 
 
-def _one_dof(excitation, t_end=2.0, **start):
-    model = jdpim.VibroImpactOscillator(alpha=0.03, gamma=0.03, r=0.98)
+def _one_dof(excitation, t_end=2.0, gamma=0.03, **start):
+    model = jdpim.VibroImpactOscillator(alpha=0.03, gamma=gamma, r=0.98)
     return jdpim.Scene(model, noise=jdpim.WhiteNoise(D=0.08), t_end=t_end, dt=0.01, excitation=excitation, **start)
 
 
@@ -67,7 +67,21 @@ def lane_states():
     return lanes
 
 
-@pytest.mark.parametrize("name", SCENES)
+# The default tier runs the two one-degree-of-freedom scenes (one program: crossings served by the wide batch and the
+# lanes, rounds run on every row without branches, and the restart of paths at rest). Slow: further scenes of the same
+# resolution, each a program of its own. Sub-steps from rest: the per-path step column goes through the batch's rows as
+# in test_hard_cases.py::test_substeps_are_per_path, the restart as in [at rest on the barrier]. Spectral forcing: other
+# excitation columns, packed and gathered as in [all cross at once]. Impact damper, held on the walls: several degrees
+# of freedom, whose impacts and held events the compact batches resolve by the same functions in
+# test_stored_values.py::test_storing_changes_no_state_beyond_its_last_bits[impact damper] and
+# test_mdof_sticking.py::test_held_paths_under_filtered_noise_stay_finite_admissible_and_held, and whose rounds run
+# without branches as in [all cross at once].
+FURTHER = ("sub-steps from rest", "spectral forcing", "impact damper", "held on the walls")
+
+
+@pytest.mark.parametrize(
+    "name", [pytest.param(name, marks=pytest.mark.slow) if name in FURTHER else name for name in SCENES]
+)
 def test_wide_resolution_gives_the_lane_states(name, monkeypatch, lane_states):
     scene = SCENES[name]()
     wide = _states(scene, 256, True, monkeypatch)
@@ -115,7 +129,8 @@ def test_a_cpu_serves_every_chunk_by_compact_batches(monkeypatch):
     assert len(handler.keys) == 2 and handler.keys[0] == handler.keys[1], handler.keys
 
 
-@pytest.mark.parametrize("name", ["all cross at once", "impact damper"])
+# slow: [impact damper] repeats on several degrees of freedom what [all cross at once] checks (the batches' widths)
+@pytest.mark.parametrize("name", ["all cross at once", pytest.param("impact damper", marks=pytest.mark.slow)])
 def test_compact_batches_give_the_same_states_whatever_their_rows(name, monkeypatch, lane_states):
     """A chunk's crossing paths go through compact batches of ``compact_rows`` rows (4 of 256 paths), as many as a
     step needs (64 in the first step of the first scene, where every path crosses): batches of 16 rows, fewer of
@@ -132,12 +147,13 @@ def test_compact_batches_give_the_same_states_whatever_their_rows(name, monkeypa
 def test_reverse_mode_through_the_wide_resolution(monkeypatch):
     """Reverse mode (``jax.value_and_grad``) of E[x^2] at t = 0.5 s with respect to the restitution, through the
     wide resolution (64 paths from the barrier's side, every one crossing at once, so the lanes serve most of them
-    too), against central differences of the same paths; one program gives the values and the derivative."""
+    too), against central differences of the same paths; one program gives the values and the derivative. Linear
+    damping: the cubic term's derivatives would only add to the program (a quarter of its compile time)."""
     monkeypatch.setattr(batches, "WIDE_CHUNK", 16)
     for module in (batches, elementwise):
         monkeypatch.setattr(module, "on_cpu", lambda: False)
     jax.clear_caches()
-    scene = _one_dof(jdpim.GaussianNodes(), t_end=0.5, x0=1e-3, v0=-1.0)
+    scene = _one_dof(jdpim.GaussianNodes(), t_end=0.5, gamma=None, x0=1e-3, v0=-1.0)
 
     @jax.jit
     @jax.value_and_grad
