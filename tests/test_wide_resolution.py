@@ -68,15 +68,13 @@ def lane_states():
 
 
 # The default tier runs the two one-degree-of-freedom scenes (one program: crossings served by the wide batch and the
-# lanes, rounds run on every row without branches, and the restart of paths at rest). Slow: further scenes of the same
-# resolution, each a program of its own. Sub-steps from rest: the per-path step column goes through the batch's rows as
-# in test_hard_cases.py::test_substeps_are_per_path, the restart as in [at rest on the barrier]. Spectral forcing: other
-# excitation columns, packed and gathered as in [all cross at once]. Impact damper, held on the walls: several degrees
-# of freedom, whose impacts and held events the compact batches resolve by the same functions in
-# test_stored_values.py::test_storing_changes_no_state_beyond_its_last_bits[impact damper] and
-# test_mdof_sticking.py::test_held_paths_under_filtered_noise_stay_finite_admissible_and_held, and whose rounds run
-# without branches as in [all cross at once].
-FURTHER = ("sub-steps from rest", "spectral forcing", "impact damper", "held on the walls")
+# lanes, rounds run on every row without branches, and the restart of paths at rest) and the held walls of several
+# degrees of freedom (the only wide run of held events). Slow: further scenes of the same resolution, each a program of
+# its own. Sub-steps from rest: the per-path step column goes through the batch's rows as in
+# test_hard_cases.py::test_substeps_are_per_path, the restart as in [at rest on the barrier]. Spectral forcing: other
+# excitation columns, packed and gathered as in [all cross at once]. Impact damper: the impacts of several degrees of
+# freedom, resolved wide as in [held on the walls] (the same structure under a filter).
+FURTHER = ("sub-steps from rest", "spectral forcing", "impact damper")
 
 
 @pytest.mark.parametrize(
