@@ -22,6 +22,7 @@ import jdpim
 NOTEBOOKS = sorted((pathlib.Path(__file__).parents[1] / "notebooks").glob("*.ipynb"))
 # notebooks run only in the slow tier, each with the default-tier tests that check what it computes
 SLOW = {
+    "accuracy": "test_bench_accuracy",
     "design": "test_design",
     "pounding": "test_pounding, test_fragility",
     "reliability": "test_first_passage_pi::test_elastic_linear_exact_bounds, test_first_passage",
