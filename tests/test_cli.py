@@ -251,7 +251,10 @@ def test_grad_of_one_point_dpim_density_in_D():
         return res.pdf("x", jnp.array([0.3]), 2.0, bandwidth=0.05)[0]
 
     fd = (p_at(0.0301) - p_at(0.0299)) / 0.0002  # converged: h = 3e-4 is not (impacts near grazing)
-    assert float(jax.grad(p_at)(0.03)) == pytest.approx(float(fd), rel=1e-2)
+    # AD is exact on these 64 points; as an estimate of the density's derivative it is not, and it says so
+    with pytest.warns(jdpim.SensitivityWarning, match="not reliable"):
+        g = float(jax.grad(p_at)(0.03))
+    assert g == pytest.approx(float(fd), rel=1e-2)
 
 
 def test_paper_command_passes_its_settings(monkeypatch, tmp_path):
