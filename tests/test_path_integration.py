@@ -122,6 +122,27 @@ def test_a_solve_inside_jit_of_a_scene_of_plain_numbers_is_the_direct_solve():
     np.testing.assert_allclose(inside, direct, rtol=1e-6, atol=1e-6 * float(direct.max()))
 
 
+@pytest.mark.parametrize("name", ["alpha", "gains"])
+def test_a_transient_inside_jit_with_a_traced_parameter_is_the_direct_solve(name):
+    """A transient density under ``jax.jit`` over a model parameter, extents given: the direct solve's to rounding.
+    A traced noise gain (a general oscillator's parameter) skips the resolution check, which needs its value (it
+    raised ``ConcretizationTypeError`` under ``jit`` and ``grad``)."""
+    settings = jdpim.PathIntegration(n_x=41, n_v=81, x_max=1.6, v_max=1.6, order=4)
+
+    def pdf(value):
+        if name == "gains":
+            gain = lambda x, v, p: p["c"] * jnp.ones(())  # noqa: E731  (the noise gain: the traced parameter)
+            model = jdpim.Oscillator(g=lambda x, p: x, f=lambda x, v, p: 0.1 * v, h=gain, params={"c": value})
+        else:
+            model = jdpim.VibroImpactOscillator(alpha=value)
+        scene = jdpim.Scene(model, noise=jdpim.WhiteNoise(D=0.03), t_end=2.0, dt=0.02)
+        return jdpim.solve(scene, settings).pdf("x", XG[:101], t=2.0)
+
+    value = 1.0 if name == "gains" else 0.03
+    direct, inside = pdf(value), jax.jit(pdf)(value)
+    np.testing.assert_allclose(inside, direct, rtol=1e-6, atol=1e-6 * float(direct.max()))
+
+
 def test_a_sweep_over_d_or_r_compiles_no_new_solve(stationary32):
     """The grid's extents (estimated from D, r, ...) and the start law are values in one program per grid size: a
     stationary solve at another D, and a transient at another r, compile no new solve once that size ran."""

@@ -756,7 +756,10 @@ def check_resolution(scene: Scene, settings: PathIntegration, extents, point_sta
     if D is None or b is None:
         return  # traced: nothing to check here
     _, q_fn = drift_and_diffusion(model, D)
-    q = float(q_fn(jnp.asarray(float(b)), jnp.asarray(0.0)))
+    q = concrete(q_fn(jnp.asarray(float(b)), jnp.asarray(0.0)))
+    if q is None:
+        return  # traced gains: nothing to check here
+    q = float(q)
     peak = math.sqrt(q * peak_weight(scene, settings.tau) * settings.tau)  # at the noise's strongest
     span_x = extents[0] if model.has_barrier else 2 * extents[0]
     dx, dv = span_x / (settings.n_x - 1), 2 * extents[1] / (settings.n_v - 1)

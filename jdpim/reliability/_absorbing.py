@@ -25,6 +25,7 @@ from ..methods._path_integration import (
     PathIntegrationWarning,
     check_resolution,
     coarser,
+    on_host,
     peak_weight,
     program_settings,
     resolved,
@@ -32,6 +33,7 @@ from ..methods._path_integration import (
     setup,
     start_density,
     step_exponents,
+    traced_parameters,
     typed_parameters,
     validate,
 )
@@ -58,6 +60,12 @@ def absorbing_first_passage(scene, settings: PathIntegration, query: FirstPassag
         )
     if query.wrt:
         _check_wrt(query)
+    if scene.model.has_barrier and concrete(scene.model.barrier) is None:
+        raise ValueError(
+            "first passage by path integration starts its grid at the barrier, so the barrier cannot be traced "
+            "(jit, grad or vmap over it): give it as a number; for dP/dbarrier use jdpim.MonteCarlo with "
+            "jdpim.CentralDifference()"
+        )
     initial = settings.initial
     validate(scene, settings, initial, stationary=False)
     settings, extents = resolved(scene, settings)
@@ -95,8 +103,7 @@ def _derivative(scene, settings: PathIntegration, extents, query: FirstPassageQu
     weights and the absorbed fractions ``keep`` held at the nominal parameters."""
     check_start(min(scene.save_at), settings)
     if "D" in query.wrt:
-        grid = make_grid(scene.model, settings.n_x, settings.n_v, *extents, scene.float_dtype)
-        check_noise_resolution(scene, settings, grid)
+        _check_noise_resolution(scene, settings, extents)
 
     def probability(values):
         survival, _, _ = _survival(
@@ -108,15 +115,41 @@ def _derivative(scene, settings: PathIntegration, extents, query: FirstPassageQu
     return jax.jacfwd(probability)(values)
 
 
+@on_host
+def _check_noise_resolution(scene, settings: PathIntegration, extents) -> None:
+    """``check_noise_resolution`` on the grid of ``extents``, built from concrete values (also inside a user's
+    ``jax.jit``)."""
+    grid = make_grid(scene.model, settings.n_x, settings.n_v, *extents, scene.float_dtype)
+    check_noise_resolution(scene, settings, grid)
+
+
 def _probability(scene, settings: PathIntegration, extents, query: FirstPassageQuery, which: str):
     """``(probability, defect, leak, keep)`` on the grid of ``settings``: each ``(S, L)``, and the absorbed
     fractions of :func:`_keep`."""
+    keep = _checked_keep(scene, settings, extents, query, which)
+    survival, defect, leak = _survival(typed_parameters(scene), program_settings(settings), extents, keep)
+    return 1.0 - survival.T, defect.T, leak.T, keep
+
+
+@on_host
+def _checked_keep(scene, settings: PathIntegration, extents, query: FirstPassageQuery, which: str):
+    """The absorbed fractions ``(L, n_x, n_v)`` of :func:`_keep` on the grid of ``settings``, its levels checked.
+
+    The grid depends only on the extents, the sizes and the barrier (numbers, however the model's other parameters
+    are traced), so the fractions and the checks are computed from concrete values, also inside a user's
+    ``jax.jit``."""
     grid = make_grid(scene.model, settings.n_x, settings.n_v, *extents, scene.float_dtype)
     levels = jnp.asarray(query.levels, scene.float_dtype)
     keep, node_max = _keep(query.quantity, grid.x, grid.v, levels)
+    node_max = concrete(node_max)
+    if node_max is None:
+        raise ValueError(
+            "var depends on a traced value (jit, grad or vmap over what it closes over): path integration sets the "
+            "part of every cell beyond the level before it steps; pass a function of the state alone, or use "
+            "jdpim.MonteCarlo"
+        )
     _check_levels(scene, settings, query, grid, float(node_max), which)
-    survival, defect, leak = _survival(typed_parameters(scene), program_settings(settings), extents, keep)
-    return 1.0 - survival.T, defect.T, leak.T, keep
+    return keep
 
 
 @functools.partial(jax.jit, static_argnames=("quantity",))
@@ -162,7 +195,14 @@ def _check_levels(scene, settings: PathIntegration, query: FirstPassageQuery, gr
     else:  # diffusion over a step (5 standard deviations), plus the stencil
         _, q = drift_and_diffusion(scene.model, scene.noise.D)
         b = float(grid.x[0]) if scene.model.has_barrier else 0.0
-        q_peak = float(q(jnp.asarray(b), jnp.asarray(0.0))) * peak_weight(scene, settings.tau)
+        q_b = concrete(q(jnp.asarray(b), jnp.asarray(0.0)))
+        if q_b is None:
+            raise ValueError(
+                f"a level of {name!r} is checked against the grid's velocity end with the diffusion q = h^T D h, "
+                f"but {', '.join(traced_parameters(scene))} is traced (jit, grad or vmap): give D and the gains' "
+                'parameters as numbers (for dP/dD pass wrt="D")'
+            )
+        q_peak = float(q_b) * peak_weight(scene, settings.tau)
         reach = 5 * math.sqrt(2 * q_peak * settings.tau) + 2 * dv
         end = v_hi
     near = levels[levels > end - reach]

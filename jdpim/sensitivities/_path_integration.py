@@ -20,6 +20,7 @@ import warnings
 import jax
 import jax.numpy as jnp
 
+from .._pytree import concrete
 from .._scene import Scene, with_parameters
 from ..methods._base import solve
 from ..methods._path_integration import PathIntegration, check_resolution, report, resolved, validate
@@ -96,7 +97,10 @@ def check_noise_resolution(scene: Scene, settings: PathIntegration, res) -> None
     grid, or anything with its nodes ``x`` and ``v``)."""
     model = scene.model
     gains = jnp.atleast_1d(model.gains(res.x[0], jnp.zeros((), res.x.dtype)))
-    q = float(gains @ jnp.atleast_2d(jnp.asarray(scene.noise.D, res.x.dtype)) @ gains)
+    q = concrete(gains @ jnp.atleast_2d(jnp.asarray(scene.noise.D, res.x.dtype)) @ gains)
+    if q is None:
+        return  # traced gains: nothing to check here
+    q = float(q)
     ratio = (q * settings.tau) ** 0.5 / float(res.v[1] - res.v[0])
     if ratio < D_RESOLUTION:
         warnings.warn(
