@@ -134,7 +134,14 @@ def _traced_scene(name, value):
     return jdpim.Scene(model, noise=noise, t_end=2.0, dt=0.02)
 
 
-@pytest.mark.parametrize("name, value", [("alpha", 0.03), ("r", 0.98), ("D", 0.03), ("gains", 1.0)])
+SLOW_CELL = pytest.mark.slow  # alpha and gains, in the default tier, check the host grid and the skipped gain check
+
+
+@pytest.mark.parametrize(
+    "name, value",
+    [("alpha", 0.03), pytest.param("r", 0.98, marks=SLOW_CELL), pytest.param("D", 0.03, marks=SLOW_CELL)]
+    + [("gains", 1.0)],
+)
 def test_jit_over_a_traced_parameter_is_the_direct_call(name, value):
     """``jax.jit`` of ``first_passage(...).probability`` with a traced model parameter and given extents: the grid,
     the absorbed fractions and the level checks depend on the extents and sizes only and are computed on the host,
@@ -158,7 +165,8 @@ def _warned(f, value):
     return out, sorted(str(w.message).split(":")[0] for w in caught)
 
 
-@pytest.mark.parametrize("name, value", [("alpha", 0.03), ("gains", 1.0)])
+# gains: slow (test_jit_over_a_traced_parameter_is_the_direct_call[gains] checks the skipped gain check by default)
+@pytest.mark.parametrize("name, value", [("alpha", 0.03), pytest.param("gains", 1.0, marks=pytest.mark.slow)])
 def test_jit_over_a_derivative_of_d_is_the_direct_call(name, value):
     """``wrt="D"`` under ``jax.jit`` with a traced parameter: the check of the grid's velocity resolution for
     ``dP/dD`` reads the grid on the host and warns as the direct call does (61 velocity nodes: too few), or is
