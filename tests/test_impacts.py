@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 import jdpim
-from jdpim._engine.batches import compact_depth, compact_rows, first_in_lanes, pending_in_order
+from jdpim._engine.batches import compact_depth, compact_rows, first_in_lanes, pending_in_runs
 from jdpim._engine.locate import locate_crossing
 from jdpim._engine.resolve import resolve_one
 from jdpim._engine.sticking import departure
@@ -247,12 +247,15 @@ def test_a_batch_crossing_together_matches_its_paths_alone():
 def test_the_tree_of_compact_batches_serves_every_step(n):
     """However the crossing paths of a step lie, ``2**compact_depth(n)`` compact batches resolve them all; a chunk of
     at most two paths takes one batch."""
-    pick = jax.jit(pending_in_order, static_argnums=1)
+    pick = jax.jit(pending_in_runs, static_argnums=1)
+    lanes = -(-n // 32)  # run l holds the paths l, l + lanes, l + 2 lanes, ...
     patterns = {
         "every path": np.ones(n, bool),
-        "one full run": np.arange(n) < 32,
+        "one full run": np.arange(n) % lanes == 0,
+        "the first 32 paths": np.arange(n) < 32,
         "every other path": np.arange(n) % 2 == 0,
-        "the last path of each run": np.arange(n) % 32 == 31,
+        "the last path of each run": np.arange(n) >= 31 * lanes,
+        "every 32nd path": np.arange(n) % 32 == 31,
     }
     for name, todo in patterns.items():
         todo, count = todo.copy(), 0

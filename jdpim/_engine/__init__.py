@@ -32,7 +32,7 @@ state is ``q``, ``v`` of shape ``(d,)``; its model's unilateral constraints ``c_
 Only the crossing paths do the impact work, gathered into small batches, each path's impacts resolved on the
 batch's small arrays and scattered back; the loops have static trip counts and skip their iterations (``lax.cond``)
 once no path is pending, so the resolution is traced once whatever ``max_impacts``, and a step without any crossing
-skips all of it. Compact batches of up to ``ceil(n / 64)`` crossing paths, in order, serve a step until none is
+skips all of it. Compact batches of up to ``ceil(n / 64)`` crossing paths serve a step until none is
 left. An accelerator's chunk of ``WIDE_CHUNK`` paths or more (where every branch costs a read by the host) has a
 first batch of up to ``n / 16`` crossing paths in every step, without branches. The
 ``"mirror"`` method is the first-order "flip after the step" rule, kept for comparison.

@@ -1,14 +1,14 @@
 r"""The resolution of a step's crossings: the crossing paths gathered in small batches, resolved and scattered back.
 
-A compact batch (:func:`compact`) takes up to :func:`compact_rows` (``ceil(n / 64)``) pending paths in order,
-the first two of each run of 32 (:func:`pending_in_order`: reductions, where ``jnp.nonzero`` over every path costs
-more than the resolution), gathers their rows column by column, resolves up to ``max_impacts`` impacts of each on
-these few rows (:func:`resolve_batch`) and scatters their end states back into ``q`` and ``v``. Every loop that runs
-on the batch touches only its small arrays. Compact batches run until none is pending: ``2**depth`` of them serve
-any step (:func:`compact_depth`), as a binary tree of ``fori_loop`` of two iterations (static trip counts, so
-reverse-mode AD works) whose subtrees are skipped once no path is pending (:func:`tree`); the resolution is traced
-once, and a step whose crossings fit in one batch runs one. They serve every step of a CPU's chunks, and of an
-accelerator's chunks of fewer than ``WIDE_CHUNK`` paths.
+A compact batch (:func:`compact`) takes up to :func:`compact_rows` (``ceil(n / 64)``) pending paths, the first two of
+each of ``ceil(n / 32)`` runs of paths (:func:`pending_in_runs`: elementwise, where ``jnp.nonzero`` over every path
+costs more than the resolution), gathers their rows column by column, resolves up to ``max_impacts`` impacts of each on
+these few rows (:func:`resolve_batch`) and scatters their end states back into ``q`` and ``v``. Every loop that runs on
+the batch touches only its small arrays. Compact batches run until none is pending: ``2**depth`` of them serve any step
+(:func:`compact_depth`), as a binary tree of ``fori_loop`` of two iterations (static trip counts, so reverse-mode AD
+works) whose subtrees are skipped once no path is pending (:func:`tree`); the resolution is traced once, and a step
+whose crossings fit in one batch runs one. They serve every step of a CPU's chunks, and of an accelerator's chunks of
+fewer than ``WIDE_CHUNK`` paths.
 
 An accelerator's chunk of ``WIDE_CHUNK`` paths or more has a wide batch (:func:`wide_first`): up to ``cap``
 (``ceil(n / 16)``, :func:`batch_rows`) crossing paths, taken in order and gathered column by column, every round on
@@ -209,29 +209,44 @@ def compact_rows(n: int) -> int:
     return min(n, -(-cap // BATCH_ROWS) * BATCH_ROWS) if cap > BATCH_ROWS else min(n, cap)
 
 
-def pending_in_order(todo, rows: int):
-    """Indices of up to ``rows`` pending paths (``todo``, ``(n,)`` bool) in order, ``n`` past the last: the first two
-    of each run of ``PICK_RUN`` paths (reductions), compacted by ``jnp.nonzero`` over these few candidates (over all
-    ``n`` paths it costs some 150 us for 1e4 on a CPU, more than a batch's resolution). A third pending path of a
-    run waits for the next batch."""
+def first_two(runs):
+    """Indices of the first two true entries of every column of ``runs`` ``(G, L)`` bool, ``G`` where there are fewer:
+    ``(first, second)``, each ``(L,)`` int32.
+
+    A chain of elementwise selects over the ``G`` rows, which XLA fuses into one pass over contiguous columns: on a
+    CPU, reductions over the rows (``jnp.argmax``, or a minimum of the true entries' indices) take several times as
+    long."""
+    first = second = jnp.full(runs.shape[1:], runs.shape[0], jnp.int32)
+    for j in reversed(range(runs.shape[0])):
+        second = jnp.where(runs[j], first, second)
+        first = jnp.where(runs[j], j, first)
+    return first, second
+
+
+def pending_in_runs(todo, rows: int):
+    """Indices of up to ``rows`` pending paths (``todo``, ``(n,)`` bool), ``n`` past the last: the first two of each
+    run of ``PICK_RUN`` paths, run ``l`` of ``L = ceil(n / PICK_RUN)`` holding the paths ``l, l + L, l + 2 L, ...``
+    (:func:`first_two`: elementwise over contiguous paths), compacted by ``jnp.nonzero`` over these few
+    candidates (over all ``n`` paths it costs some 150 us for 1e4 on a CPU, more than a batch's resolution). A third
+    pending path of a run waits for the next batch. A batch resolves each row by the same function whatever its
+    rows and their order (:func:`compact`), so which batch takes a path does not change its end state."""
     n = todo.shape[0]
     lanes = -(-n // PICK_RUN)
-    runs = jnp.pad(todo, (0, lanes * PICK_RUN - n)).reshape(lanes, PICK_RUN)
-    first = jnp.argmax(runs, axis=1)
-    rest = runs & (jnp.arange(PICK_RUN)[None, :] != first[:, None])
-    picked = jnp.stack([jnp.any(runs, axis=1), jnp.any(rest, axis=1)], axis=1).reshape(-1)
-    candidates = jnp.arange(lanes)[:, None] * PICK_RUN + jnp.stack([first, jnp.argmax(rest, axis=1)], axis=1)
-    candidates = jnp.append(candidates.reshape(-1).astype(jnp.int32), n)
+    runs = jnp.pad(todo, (0, lanes * PICK_RUN - n)).reshape(PICK_RUN, lanes)
+    first, second = first_two(runs)
+    picked = jnp.stack([first < PICK_RUN, second < PICK_RUN], axis=1).reshape(-1)
+    candidates = jnp.stack([first, second], axis=1) * lanes + jnp.arange(lanes, dtype=jnp.int32)[:, None]
+    candidates = jnp.append(candidates.reshape(-1), n)
     return candidates[jnp.nonzero(picked, size=rows, fill_value=2 * lanes)[0]]
 
 
 def compact(eng: Engine, packing: Packing, columns, carry):
-    """One compact batch: up to :func:`compact_rows` pending paths of ``carry = ((q, v), todo, any pending)``, in
-    order (:func:`pending_in_order`), their rows gathered column by column, resolved, scattered back into ``q`` and
+    """One compact batch: up to :func:`compact_rows` pending paths of ``carry = ((q, v), todo, any pending)``
+    (:func:`pending_in_runs`), their rows gathered column by column, resolved, scattered back into ``q`` and
     ``v`` and cleared from ``todo``."""
     y1, todo, _ = carry
     n, d = y1[0].shape
-    idx = pending_in_order(todo, compact_rows(n))
+    idx = pending_in_runs(todo, compact_rows(n))
     end = resolve_batch(eng, packing, jnp.concatenate([c.at[idx].get(mode="clip") for c in columns], axis=1), False)
     y1 = tuple(y.at[idx].set(part, mode="drop") for y, part in zip(y1, (end[:, :d], end[:, d:]), strict=True))
     todo = todo.at[idx].set(False, mode="drop")
@@ -241,7 +256,7 @@ def compact(eng: Engine, packing: Packing, columns, carry):
 def compact_depth(n: int) -> int:
     """Depth of the :func:`tree` of compact batches that serves any step of ``n`` paths. A batch takes
     :func:`compact_rows` paths (at most ``n // rows`` such batches), or else every run's first two
-    (:func:`pending_in_order`), which empties every run, of at most ``min(n, PICK_RUN)`` paths, within
+    (:func:`pending_in_runs`), which empties every run, of at most ``min(n, PICK_RUN)`` paths, within
     ``ceil(min(n, PICK_RUN) / 2)`` such batches; one batch takes a chunk of at most two paths."""
     if n <= 2:
         return 0
