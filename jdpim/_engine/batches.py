@@ -247,6 +247,9 @@ def compact(eng: Engine, packing: Packing, columns, carry):
     y1, todo, _ = carry
     n, d = y1[0].shape
     idx = pending_in_runs(todo, compact_rows(n))
+    # the step's ends from the carry: a pending path's are still those of its free step, and the step's own copy
+    # would have to outlive the carry's updates (a copy of every path's state in every step)
+    columns = columns[:3] + y1 + columns[5:]
     end = resolve_batch(eng, packing, jnp.concatenate([c.at[idx].get(mode="clip") for c in columns], axis=1), False)
     y1 = tuple(y.at[idx].set(part, mode="drop") for y, part in zip(y1, (end[:, :d], end[:, d:]), strict=True))
     todo = todo.at[idx].set(False, mode="drop")
