@@ -82,6 +82,9 @@ class Packing(NamedTuple):
     h: Any
 
 
+STEP_ENDS = slice(3, 5)  # the columns of the step's ends (q, v) in pack's order: y0 (2), tau0, y1 (2), ...
+
+
 def pack(eng: Engine, y0, tau0, y1, e, rand, h, held, force):
     """The per-path inputs of a chunk's step as a tuple of ``(n, width)`` columns, and their :class:`Packing`."""
     per_path_h = jnp.ndim(h) != 0
@@ -249,7 +252,7 @@ def compact(eng: Engine, packing: Packing, columns, carry):
     idx = pending_in_runs(todo, compact_rows(n))
     # the step's ends from the carry: a pending path's are still those of its free step, and the step's own copy
     # would have to outlive the carry's updates (a copy of every path's state in every step)
-    columns = columns[:3] + y1 + columns[5:]
+    columns = columns[: STEP_ENDS.start] + y1 + columns[STEP_ENDS.stop :]
     end = resolve_batch(eng, packing, jnp.concatenate([c.at[idx].get(mode="clip") for c in columns], axis=1), False)
     y1 = tuple(y.at[idx].set(part, mode="drop") for y, part in zip(y1, (end[:, :d], end[:, d:]), strict=True))
     todo = todo.at[idx].set(False, mode="drop")
