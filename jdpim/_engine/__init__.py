@@ -29,13 +29,13 @@ state is ``q``, ``v`` of shape ``(d,)``; its model's unilateral constraints ``c_
    the end of its full step, exceeds ``limit / h`` redoes that step as
    ``k = min(max_substeps, ceil(h rho / limit))`` equal sub-steps of its own (see :class:`Substeps`).
 
-Only the crossing paths do the impact work, gathered into small batches, each path's impacts resolved on the
-batch's small arrays and scattered back; the loops have static trip counts and skip their iterations (``lax.cond``)
-once no path is pending, so the resolution is traced once whatever ``max_impacts``, and a step without any crossing
-skips all of it. Compact batches of up to ``ceil(n / 64)`` crossing paths serve a step until none is
-left. An accelerator's chunk of ``WIDE_CHUNK`` paths or more (where every branch costs a read by the host) has a
-first batch of up to ``n / 16`` crossing paths in every step, without branches. The
-``"mirror"`` method is the first-order "flip after the step" rule, kept for comparison.
+Only the crossing paths and those at rest on the barrier do the impact work, gathered into small batches, each path's
+impacts resolved on the batch's small arrays and scattered back; the loops have static trip counts and skip their
+iterations (``lax.cond``) once no path is pending, so the resolution is traced once whatever ``max_impacts``, and a step
+without any crossing skips all of it. Compact batches of up to ``ceil(n / 64)`` crossing paths serve a step until none
+is left. An accelerator's chunk of ``WIDE_CHUNK`` paths or more (where every branch costs a read by the host) has a
+first batch of up to ``n / 16`` crossing paths in every step, without branches. The ``"mirror"`` method is the
+first-order "flip after the step" rule, kept for comparison.
 
 The parts, one module each: :mod:`.settings` (the static settings :class:`ImpactRule` and :class:`Substeps`),
 :mod:`.rk4` (one path's RK4 step, free or held; the stiffness rate), :mod:`.locate` (impact location, 1),

@@ -14,10 +14,13 @@ An accelerator's chunk of ``WIDE_CHUNK`` paths or more has a wide batch (:func:`
 (``ceil(n / 16)``, :func:`batch_rows`) crossing paths, taken in order and gathered column by column, every round on
 every row; batches of the first pending path of each of ``cap`` lanes of ``G = 16`` paths (:func:`one_batch`,
 :func:`batches`) serve the crossings beyond it. It runs in every step without branches: every branch costs a read of
-its predicate by the host and kernels of its own, which set the cost of a step (docs/speed.md). There the paths at
-rest on the barrier (one degree of freedom) are served with the crossing paths, and their batch restarts them where
-the force pulls them off. On a CPU a branch is cheap, and compact batches serve even the impact damper's crowded
-steps faster than a wide batch, in a program with one copy of the resolution.
+its predicate by the host and kernels of its own, which set the cost of a step (docs/speed.md). On a CPU a branch is
+cheap, and compact batches serve even the impact damper's crowded steps faster than a wide batch, in a program with
+one copy of the resolution.
+
+The paths at rest on the barrier (one degree of freedom) are pending too: every path's step starts with the plain
+RK4 step from the step's start, and the batch restarts a resting path where the force pulls it off
+(:func:`resolve_batch`). A branch over every path for the few at rest would cost more in every step than these rows.
 
 A compact batch resolves each row by the same function whatever the batch's rows (rounds under ``lax.cond``), so a
 path's end state does not depend on which batch serves it; the wide batch runs every round on every row without
@@ -82,25 +85,26 @@ class Packing(NamedTuple):
     h: Any
 
 
-STEP_ENDS = slice(3, 5)  # the columns of the step's ends (q, v) in pack's order: y0 (2), tau0, y1 (2), ...
+STEP_ENDS = slice(2, 4)  # the columns of the step's ends (q, v) in pack's order: y0 (2), y1 (2), ...
 
 
-def pack(eng: Engine, y0, tau0, y1, e, rand, h, held, force):
+def pack(eng: Engine, y0, y1, e, rand, h, held, force):
     """The per-path inputs of a chunk's step as a tuple of ``(n, width)`` columns, and their :class:`Packing`."""
     per_path_h = jnp.ndim(h) != 0
     e = tuple(e) if isinstance(e, (tuple, list)) else tuple(e[:, i] for i in range(3))
-    columns = (*y0, tau0[:, None], *y1, *e, rand) + ((h[:, None],) if per_path_h else ())
+    columns = (*y0, *y1, *e, rand) + ((h[:, None],) if per_path_h else ())
     if eng.holding:
-        columns = columns + (force, held.astype(tau0.dtype)[:, None])
+        columns = columns + (force, held.astype(force.dtype)[:, None])
     return columns, Packing(y0[0].shape[0], tuple(c.shape[1] for c in columns), None if per_path_h else h)
 
 
 def unpack(packing: Packing, rows):
-    """``(y0, tau0, y1, e, rand, h, held_columns)`` of the rows of a batch (:func:`pack`)."""
+    """``(y0, tau0, y1, e, rand, h, held_columns)`` of the rows of a batch (:func:`pack`); ``tau0``, the fraction of
+    the step ``y0`` is at, is 0 (every step starts at the step's start)."""
     parts = jnp.split(rows, list(itertools.accumulate(packing.widths))[:-1], axis=1)
-    q0, v0, t0, q1, v1, e0, e1, e2, r = parts[:9]
-    t0 = t0[:, 0]
-    h = parts[9][:, 0] if packing.h is None else packing.h
+    q0, v0, q1, v1, e0, e1, e2, r = parts[:8]
+    t0 = jnp.zeros(q0.shape[:1], q0.dtype)
+    h = parts[8][:, 0] if packing.h is None else packing.h
     return (q0, v0), t0, (q1, v1), (e0, e1, e2), r, h, parts[-2:]
 
 
@@ -127,7 +131,7 @@ def resolve_batch(eng: Engine, packing: Packing, rows, wide):
     """Up to ``max_impacts`` impacts of each of the batch's paths: ``(k, 2 d)`` end states (``wide``: every
     round on every row, without branches)."""
     b0, t0, b1, be, br, bh, held_columns = unpack(packing, rows)
-    if eng.sticking and branch_free(packing.n):  # its paths at rest start where the force pulls them off
+    if eng.sticking:  # its paths at rest start where the force pulls them off
         resting = each(rests, eng)(*b0, br)
         *moved, t0 = from_rest(eng, *b0, be, br, bh)
         b1 = tuple(jnp.where(along_paths(resting, a), a, b) for a, b in zip(moved, b1, strict=True))
@@ -269,15 +273,16 @@ def compact_depth(n: int) -> int:
     return (n // compact_rows(n) + -(-min(n, PICK_RUN) // 2) - 1).bit_length()
 
 
-def resolve_crossings(eng: Engine, y0, tau0, y1, e, rand, h, held=None, force=None, departs=None):
-    """Every located impact of the step: ``y1`` with each crossing path's impacts resolved (with ``held``, the
+def resolve_crossings(eng: Engine, y0, y1, e, rand, h, held=None, force=None, departs=None):
+    """Every located impact of the step from ``y0`` to ``y1`` (every path's plain step, from the step's start):
+    ``y1`` with each crossing path's impacts resolved and each path at rest restarted (with ``held``, the
     constraint each path is held on, ``force``, its stage forces, and ``departs``, whether it lets go inside the
     step: every event of :func:`resolve_held`), by batches of the crossing paths (see the module's text)."""
     n, d = y0[0].shape
     unbranched = branch_free(n)
-    columns, packing = pack(eng, y0, tau0, y1, e, rand, h, held, force)
+    columns, packing = pack(eng, y0, y1, e, rand, h, held, force)
     todo = each(to_locate, eng)(y0, y1, rand) if held is None else each(to_locate, eng)(y0, y1, rand, held) | departs
-    if eng.sticking and unbranched:
+    if eng.sticking:
         todo = todo | each(rests, eng)(*y0, rand)
 
     def by_compact(y1, todo):  # compact batches until none is pending (one where few paths cross)

@@ -5,41 +5,27 @@ from __future__ import annotations
 
 import functools
 
-import jax
-import jax.numpy as jnp
-
-from .batches import branch_free, resolve_crossings
-from .one_path import Engine, each, free_from_start, from_rest, mirrored, per_path, rests, start_held
+from .batches import resolve_crossings
+from .one_path import Engine, each, free_from_start, mirrored, per_path, start_held
 from .settings import ImpactRule, Substeps
 from .substeps import substepped
 
 
 def plain_step(eng: Engine, q, v, e, rand, h):
     """One step of every path; ``h`` is the step length, shared (scalar) or per path ``(n,)``."""
-    tau0 = jnp.zeros(q.shape[:1], q.dtype)
-    # A path at rest starts at its own fraction of the step. A step without one takes the plain form (the
-    # forcing nodes themselves, the step's constants folded), which XLA keeps in fewer kernels. An
-    # accelerator's compiler folds this branch into a select and takes the restart of every path in every
-    # step: there the resolution's batch restarts the paths at rest instead (resolve_crossings).
-    start = per_path(free_from_start, eng, h)
-    if eng.sticking and not branch_free(q.shape[0]):
-
-        def from_start():
-            return (*start(q, v, e, rand), tau0)
-
-        q1, v1, tau0 = jax.lax.cond(
-            jnp.any(each(rests, eng)(q, v, rand)), lambda: from_rest(eng, q, v, e, rand, h), from_start
-        )
-    elif eng.holding:
+    # every path takes the plain form from the step's start (the forcing nodes themselves, the step's constants
+    # folded); a path at rest on the barrier is one of the resolution's pending paths, which its batch restarts
+    # where the force pulls it off (resolve_crossings), so no branch over every path runs in every step
+    if eng.holding:
         q1, v1, force, held, departs = per_path(start_held, eng, h)(q, v, e, rand)
     else:
-        q1, v1 = start(q, v, e, rand)
+        q1, v1 = per_path(free_from_start, eng, h)(q, v, e, rand)
     if not eng.constrained:
         return q1, v1
     if eng.holding:
-        q1, v1 = resolve_crossings(eng, (q, v), tau0, (q1, v1), e, rand, h, held, force, departs)
+        q1, v1 = resolve_crossings(eng, (q, v), (q1, v1), e, rand, h, held, force, departs)
     elif eng.rule.method == "locate":
-        q1, v1 = resolve_crossings(eng, (q, v), tau0, (q1, v1), e, rand, h)
+        q1, v1 = resolve_crossings(eng, (q, v), (q1, v1), e, rand, h)
     return each(mirrored, eng)(q1, v1, rand)
 
 
