@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import jdpim
-from jdpim.methods._paths import balanced_chunk, monte_carlo_inputs, run_paths, simulate
+from jdpim.methods._paths import SIZE_STEPS, balanced_chunk, monte_carlo_inputs, run_paths, shared_size, simulate
 
 SCENE = jdpim.Scene(jdpim.VibroImpactOscillator(), t_end=2.0, dt=0.01, save_at=(1.0, 2.0))
 
@@ -94,13 +94,22 @@ def test_two_host_devices_split_the_paths_with_identical_results(two_cpu_devices
 @pytest.mark.parametrize(
     ("n", "chunk", "devices"), [(10_000, 770, 2), (10_000, 770, 1), (48, 20, 1), (7, 3, 4), (5, 8, 2)]
 )
-def test_balanced_chunks_are_no_larger_and_pad_less_than_a_path_per_chunk(n, chunk, devices):
+def test_balanced_chunks_are_no_larger_and_pad_less_than_a_path_per_chunk_and_a_sixteenth(n, chunk, devices):
     c = balanced_chunk(n, chunk, devices)
     share = -(-n // devices)
     n_chunks = -(-share // c)
     assert 1 <= c <= chunk
+    assert c == chunk or c == shared_size(c)  # a size that nearby runs share, where the limit allows
     assert n_chunks == -(-share // chunk)  # as few chunks as the limit allows
-    assert 0 <= n_chunks * c - share < n_chunks
+    assert 0 <= n_chunks * c - share < n_chunks * (1 + c / SIZE_STEPS)
+
+
+def test_shared_sizes_are_sixteen_per_octave():
+    sizes = sorted({shared_size(n) for n in range(1, 4097)})
+    assert sizes[:32] == list(range(1, 33))  # every size up to 32
+    assert all(16 <= s >> max(0, s.bit_length() - 5) < 32 for s in sizes if s > 32)
+    assert sum(1024 <= s < 2048 for s in sizes) == SIZE_STEPS
+    assert all(n <= shared_size(n) < n * (1 + 1 / SIZE_STEPS) + 1 for n in range(1, 4097))
 
 
 @pytest.mark.slow  # blocks: test_blocks_give_the_same_states_as_one_call

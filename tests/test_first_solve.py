@@ -73,6 +73,16 @@ def test_a_new_number_of_chunks_compiles_no_new_run():
     assert two.states.shape == (26, 1, 2) and three.states.shape == (39, 1, 2)
 
 
+def test_nearby_sample_counts_share_one_run():
+    """290 and 300 paths take one chunk of the same shared size (304): the second solve compiles no new run."""
+    scene = jdpim.Scene(jdpim.VibroImpactOscillator(), noise=jdpim.WhiteNoise(D=0.03), t_end=0.2, dt=0.01)
+    with compiled_programs() as names:
+        a = jdpim.solve(scene, jdpim.MonteCarlo(n_samples=290, seed=0))
+        b = jdpim.solve(scene, jdpim.MonteCarlo(n_samples=300, seed=0))
+    assert names.count("jit(simulate)") <= 1, names
+    np.testing.assert_array_equal(a.states, b.states[:290])  # the same paths, whatever the padding
+
+
 def test_moment_order_is_an_integer():
     """``Result.moment`` checks its order as ``GridResult.moment`` does."""
     res = jdpim.Result((1.0,), np.zeros((3, 1, 2), np.float32), np.full(3, 1 / 3, np.float32), 0.0)

@@ -200,16 +200,18 @@ def default_chunk_size(scene: Scene, n_paths: int, kind: str) -> int:
     :class:`jdpim.GaussianNodes` (no excitation array) a CPU's chunks hold up to ``NODES_CHUNK`` paths instead;
     those of ``WIDE_CHUNK`` paths or more resolve a step where many paths cross in one batch. On a GPU half its
     memory, as far as 32-bit indexing allows: a GPU's time per step barely grows with the paths in a chunk, so
-    large chunks are what make it fast (``docs/speed.md``).
+    large chunks are what make it fast (``docs/speed.md``). The chunks are equal, of a size rounded up to one of
+    ``SIZE_STEPS`` per octave within those limits (:func:`shared_size`), so that runs of nearby sizes share one
+    compiled program.
     """
     bytes_per_path = 4 * scene.float_dtype.itemsize * _values_per_path(scene, kind)
     cpu = on_cpu()
-    cap = CPU_CHUNK_BYTES // scene.float_dtype.itemsize if cpu else n_paths
+    cap = CPU_CHUNK_BYTES // scene.float_dtype.itemsize if cpu else shared_size(n_paths)
     if cpu and excitation_of(scene, kind).values_per_path(scene) == 0:
         cap = NODES_CHUNK
-    largest = max(1, min(n_paths, cap, memory_budget() // bytes_per_path, _largest_chunk(scene, kind)))
-    n_chunks = -(-n_paths // largest)
-    return -(-n_paths // n_chunks)  # equal chunks: the least padding
+    limit = max(1, min(cap, memory_budget() // bytes_per_path, _largest_chunk(scene, kind)))
+    n_chunks = -(-n_paths // min(n_paths, limit))
+    return min(limit, shared_size(-(-n_paths // n_chunks)))  # equal chunks, of a size that nearby runs share
 
 
 def _monte_carlo_keys(scene: Scene, row):
@@ -307,8 +309,10 @@ def integrate_forcing(scene: Scene, excitation, rand, track=None, layout=None):
 
 
 def pad_rows(rows, pad: int):
-    """``rows`` with ``pad`` copies of its first row appended (padding paths, dropped from the results)."""
-    return jnp.concatenate([rows, jnp.repeat(rows[:1], pad, axis=0)]) if pad else rows
+    """``rows`` with ``pad`` copies of its first row appended (padding paths, dropped from the results); a NumPy
+    array stays on the host (no program per size)."""
+    xp = np if isinstance(rows, np.ndarray) else jnp
+    return xp.concatenate([rows, xp.repeat(rows[:1], pad, axis=0)]) if pad else rows
 
 
 def _simulate(scene: Scene, rows, layout=None, *, kind: str, chunk_size: int, track=None):
@@ -352,13 +356,27 @@ def _devices(devices):
     return devices
 
 
-def balanced_chunk(n_paths: int, chunk_size: int, n_devices: int) -> int:
-    """The chunk size for ``n_paths`` over ``n_devices``: equal chunks per device, none above ``chunk_size``.
+SIZE_STEPS = 16  # chunk sizes per octave (sizes m 2**k, m = 16 .. 31): at most 1/16 of a chunk is padding
 
-    Each device then holds as little padding as whole chunks allow (less than one path per chunk).
+
+def shared_size(n: int) -> int:
+    """``n`` paths rounded up to one of ``SIZE_STEPS`` chunk sizes per octave: runs whose chunks differ by less than
+    a sixteenth share one compiled program, for at most ``1/16`` more paths (padding, dropped from the results; a
+    path's states do not depend on its chunk)."""
+    step = 1 << max(0, n.bit_length() - 5)
+    return -(-n // step) * step
+
+
+def balanced_chunk(n_paths: int, chunk_size: int, n_devices: int) -> int:
+    """The chunk size for ``n_paths`` over ``n_devices``: equal chunks per device, none above ``chunk_size``, rounded
+    up to a shared size (:func:`shared_size`) where that stays within ``chunk_size``.
+
+    Each device then holds as few chunks as ``chunk_size`` allows, and as padding less than one path per chunk and
+    a sixteenth of its paths.
     """
     share = -(-n_paths // n_devices)
-    return -(-share // -(-share // chunk_size))
+    equal = -(-share // -(-share // chunk_size))
+    return min(chunk_size, shared_size(equal))
 
 
 def home_device(devices):
@@ -519,7 +537,7 @@ def _run_local(scene: Scene, rows, *, kind, chunk_size, block_size, devices, pro
         run = fn if track is None else lambda scene, rows: fn(scene, rows, track)
     bar = _Progress(n, label or kind, n_blocks > 1 if progress is None else bool(progress))
     pad = n_blocks * block - n
-    rows = pad_rows(rows, pad)
+    rows = pad_rows(np.asarray(rows), pad)  # on the host: the rows of a block go to the devices as they run
     home = home_device(devices)
     if n_blocks == 1 and checkpoint is None:
         out = run(scene, jax.device_put(rows, sharding))
