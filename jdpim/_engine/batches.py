@@ -4,11 +4,12 @@ A compact batch (:func:`compact`) takes up to :func:`compact_rows` (``ceil(n / 6
 each of ``ceil(n / 32)`` runs of paths (:func:`pending_in_runs`: elementwise, where ``jnp.nonzero`` over every path
 costs more than the resolution), gathers their rows column by column, resolves up to ``max_impacts`` impacts of each on
 these few rows (:func:`resolve_batch`) and scatters their end states back into ``q`` and ``v``. Every loop that runs on
-the batch touches only its small arrays. Compact batches run until none is pending: ``2**depth`` of them serve any step
-(:func:`compact_depth`), as a binary tree of ``fori_loop`` of two iterations (static trip counts, so reverse-mode AD
-works) whose subtrees are skipped once no path is pending (:func:`tree`); the resolution is traced once, and a step
-whose crossings fit in one batch runs one. They serve every step of a CPU's chunks, and of an accelerator's chunks of
-fewer than ``WIDE_CHUNK`` paths.
+the batch touches only its small arrays. Compact batches run until none is pending, in a ``while_loop``
+(:func:`until_done`): a step whose crossings fit in one batch runs one, and the loop's control costs one test per
+batch. Derivatives take the same batches as a binary tree of ``fori_loop`` of two iterations whose subtrees are
+skipped once no path is pending (:func:`tree`): its static trip counts (``2**depth`` batches serve any step,
+:func:`compact_depth`) are what reverse mode needs. The resolution is traced once either way. Compact batches serve
+every step of a CPU's chunks, and of an accelerator's chunks of fewer than ``WIDE_CHUNK`` paths.
 
 An accelerator's chunk of ``WIDE_CHUNK`` paths or more has a wide batch (:func:`wide_first`): up to ``cap``
 (``ceil(n / 16)``, :func:`batch_rows`) crossing paths, taken in order and gathered column by column, every round on
@@ -188,6 +189,35 @@ def tree(leaf, carry, depth: int):
     return jax.lax.cond(carry[-1], run, lambda c: c, carry)
 
 
+def until_done(leaf, carry, depth: int):
+    """``leaf`` (one batch) called until no path is pending (``carry[-1]``): a ``while_loop`` of as many calls as the
+    step needs; differentiated as the :func:`tree` of up to ``2**depth`` calls, whose static trip counts reverse mode
+    needs, and which gives the same values.
+
+    The loop's derivative rule sees every value the batch reads (the step's columns, the model's parameters) as an
+    argument: the batch is traced once to a jaxpr whose constants are passed explicitly (a ``custom_jvp`` cannot
+    differentiate with respect to values it closes over)."""
+    closed = jax.make_jaxpr(leaf)(carry)
+    treedef = jax.tree_util.tree_structure(carry)
+
+    def call(consts, c):
+        return jax.tree_util.tree_unflatten(
+            treedef, jax.core.eval_jaxpr(closed.jaxpr, consts, *jax.tree_util.tree_leaves(c))
+        )
+
+    return _until_done(call, depth, carry, list(closed.consts))
+
+
+@functools.partial(jax.custom_jvp, nondiff_argnums=(0, 1))
+def _until_done(call, depth, carry, consts):
+    return jax.lax.while_loop(lambda c: c[-1], functools.partial(call, consts), carry)
+
+
+@_until_done.defjvp
+def _until_done_jvp(call, depth, primals, tangents):
+    return jax.jvp(lambda carry, consts: tree(functools.partial(call, consts), carry, depth), primals, tangents)
+
+
 def depth_for(n: int, rows: int) -> int:
     """Depth of a :func:`tree` of batches of ``rows`` rows that serves any step of ``n`` paths."""
     return (-(-n // rows) - 1).bit_length()
@@ -286,7 +316,8 @@ def resolve_crossings(eng: Engine, y0, y1, e, rand, h, held=None, force=None, de
         todo = todo | each(rests, eng)(*y0, rand)
 
     def by_compact(y1, todo):  # compact batches until none is pending (one where few paths cross)
-        return tree(functools.partial(compact, eng, packing, columns), (y1, todo, jnp.any(todo)), compact_depth(n))[0]
+        leaf = functools.partial(compact, eng, packing, columns)
+        return until_done(leaf, (y1, todo, jnp.any(todo)), compact_depth(n))[0]
 
     if not unbranched:
         return by_compact(y1, todo)
