@@ -39,6 +39,7 @@ import jax.numpy as jnp
 
 from .._cpu import on_cpu
 from .elementwise import along_paths
+from .loops import while_differentiated_as
 from .one_path import Engine, each, from_rest, per_path, resolve, resolve_event, rests, to_locate
 
 # an accelerator's chunks of at least this many paths resolve their crossings in a wide batch first, of a
@@ -191,31 +192,9 @@ def tree(leaf, carry, depth: int):
 
 def until_done(leaf, carry, depth: int):
     """``leaf`` (one batch) called until no path is pending (``carry[-1]``): a ``while_loop`` of as many calls as the
-    step needs; differentiated as the :func:`tree` of up to ``2**depth`` calls, whose static trip counts reverse mode
-    needs, and which gives the same values.
-
-    The loop's derivative rule sees every value the batch reads (the step's columns, the model's parameters) as an
-    argument: the batch is traced once to a jaxpr whose constants are passed explicitly (a ``custom_jvp`` cannot
-    differentiate with respect to values it closes over)."""
-    closed = jax.make_jaxpr(leaf)(carry)
-    treedef = jax.tree_util.tree_structure(carry)
-
-    def call(consts, c):
-        return jax.tree_util.tree_unflatten(
-            treedef, jax.core.eval_jaxpr(closed.jaxpr, consts, *jax.tree_util.tree_leaves(c))
-        )
-
-    return _until_done(call, depth, carry, list(closed.consts))
-
-
-@functools.partial(jax.custom_jvp, nondiff_argnums=(0, 1))
-def _until_done(call, depth, carry, consts):
-    return jax.lax.while_loop(lambda c: c[-1], functools.partial(call, consts), carry)
-
-
-@_until_done.defjvp
-def _until_done_jvp(call, depth, primals, tangents):
-    return jax.jvp(lambda carry, consts: tree(functools.partial(call, consts), carry, depth), primals, tangents)
+    step needs, differentiated as the :func:`tree` of up to ``2**depth`` calls, which gives the same values
+    (:func:`.loops.while_differentiated_as`)."""
+    return while_differentiated_as(lambda cond, body, c: tree(body, c, depth), lambda c: c[-1], leaf, carry)
 
 
 def depth_for(n: int, rows: int) -> int:

@@ -83,9 +83,11 @@ class Substeps:
     of the step, or at the end of its full step (a trial every path takes first), calls for it; a
     trial that blew up asks for ``max_substeps``. Each path's ``k`` is its own, so its result does not
     depend on which paths share its batch (chunk size, devices). The sub-steps run inside a
-    ``fori_loop`` of ``max_substeps + 1`` iterations (static trip count, so reverse-mode AD works)
-    whose iterations past the largest ``k`` are skipped; paths with fewer sub-steps idle in them. A
-    step without a stiff path costs the trial and two rate evaluations per path. Paths still unstable
+    ``while_loop`` of as many iterations as the largest ``k`` asks (one, the trial, where no path is
+    stiff); paths with fewer sub-steps idle in them. Derivatives run the same iterations in a
+    ``fori_loop`` of ``max_substeps + 1`` (static trip count, as reverse mode needs) whose iterations
+    past the largest ``k`` are skipped. A step without a stiff path costs the trial and two rate
+    evaluations per path. Paths still unstable
     at ``max_substeps`` blow up and are counted (``Result.n_nonfinite``), never hidden.
 
     ``limit`` trades accuracy for time: ``h rho`` near RK4's stability bound (2.785) is stable but

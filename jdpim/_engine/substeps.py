@@ -9,6 +9,7 @@ import jax
 import jax.numpy as jnp
 
 from .elementwise import along_paths
+from .loops import while_differentiated_as
 from .one_path import Engine
 from .rk4 import forcing, stiffness_rate
 from .settings import Substeps
@@ -62,14 +63,19 @@ def substepped(eng: Engine, substeps: Substeps, plain_step, h, q, v, e, rand):
 
         return jax.lax.cond(first, after_trial, lambda: (trial, new, k))
 
-    def active(i, carry):
-        k_max = jnp.max(carry[2])
+    def active(c):  # c = (i, trial, y, k): iteration i has work
+        i, k_max = c[0], jnp.max(c[3])
         return (i == 0) | ((k_max > 1) & (i <= k_max))
 
-    trial, y, k = jax.lax.fori_loop(
-        0,
-        substeps.max_substeps + 1,
-        lambda i, c: jax.lax.cond(active(i, c), body, lambda i, c: c, i, c),
-        (start, start, k_start),
-    )
+    def iteration(c):
+        return (c[0] + 1, *body(c[0], c[1:]))
+
+    def bounded(active, iteration, c):  # max_substeps + 1 iterations, those past the last skipped
+        return jax.lax.fori_loop(
+            0, substeps.max_substeps + 1, lambda _, c: jax.lax.cond(active(c), iteration, lambda c: c, c), c
+        )
+
+    # as many iterations as the step's stiffest path needs (one where none is stiff)
+    carry = (jnp.zeros((), jnp.int32), start, start, k_start)
+    _, trial, y, k = while_differentiated_as(bounded, active, iteration, carry)
     return tuple(jnp.where(along_paths(k > 1, a), a, b) for a, b in zip(y, trial, strict=True))
