@@ -87,8 +87,8 @@ class Substeps:
     stiff); paths with fewer sub-steps idle in them. Derivatives run the same iterations in a
     ``fori_loop`` of ``max_substeps + 1`` (static trip count, as reverse mode needs) whose iterations
     past the largest ``k`` are skipped. A step without a stiff path costs the trial and two rate
-    evaluations per path. Paths still unstable
-    at ``max_substeps`` blow up and are counted (``Result.n_nonfinite``), never hidden.
+    evaluations per path. Paths still unstable at ``max_substeps`` blow up and are counted
+    (``Result.n_nonfinite``), never hidden.
 
     ``limit`` trades accuracy for time: ``h rho`` near RK4's stability bound (2.785) is stable but
     inaccurate (RK4 damps a mode with ``h lambda = -2`` by 0.33 instead of ``e^-2 = 0.14``). The default
