@@ -518,7 +518,7 @@ def gaussian_coefficients(
 
 
 def _mix(X, Y, grid: SpectralGrid, mixing):
-    Y = Y.at[..., 0].set(0.0)  # no sine term at w = 0
+    Y = jnp.where(jnp.arange(Y.shape[-1]) == 0, 0.0, Y)  # no sine term at w = 0 (a select fuses; a scatter is a pass)
     c = jnp.asarray(grid.amplitude(), X.dtype)[None, :] * jax.lax.complex(X, -Y)
     return jnp.einsum("ij,jk->ik", mixing.astype(c.dtype), c)
 
