@@ -11,7 +11,7 @@ import pytest
 
 import jdpim
 from jdpim import exact
-from jdpim.bench.speed import JAX_KEY_IMPLS, jax_mcs, numpy_mcs
+from jdpim.bench.speed import JAX_KEY_IMPLS, UNREACHED_BARRIER, jax_mcs, layers, numpy_mcs
 
 N_PATHS, T = 20_000, 10.0
 
@@ -63,3 +63,18 @@ def test_plain_jax_baseline_matches_the_numpy_baseline(impl, numpy_reference):
     for ours, theirs in ((x**2, xn**2), (v**2, vn**2)):
         (m1, se1), (m2, se2) = _mean_and_se(ours), _mean_and_se(theirs)
         assert abs(m1 - m2) < 4 * np.hypot(se1, se2), (m1, m2, se1, se2)
+
+
+def test_layers_of_impact_handling_differ_by_one_layer_each():
+    """The speed bench's rows of jdpim (``layers``): with located impacts and a barrier that no path reaches, every
+    path's states are those of the oscillator without a barrier, bit for bit (the test of every step changes no
+    path), and the paths stay far from that barrier; the mirror rule and located impacts run the reference scene."""
+    scenes = dict(layers(T))
+    assert list(scenes) == ["none", "mirror", "locate, unreached", "locate"]
+    free, unreached = (
+        np.asarray(jdpim.monte_carlo(scenes[k], n_samples=2000, seed=0).states) for k in ("none", "locate, unreached")
+    )
+    np.testing.assert_array_equal(unreached, free)
+    assert free[..., 0].min() > UNREACHED_BARRIER / 5
+    assert scenes["mirror"].impacts.method == "mirror" and scenes["locate"].impacts.method == "locate"
+    assert scenes["mirror"].model == scenes["locate"].model and scenes["locate"].model.barrier == 0.0

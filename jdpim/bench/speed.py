@@ -39,6 +39,7 @@ import numpy as np
 
 from .._excitation import GaussianNodes, SpectralRepresentation
 from .._integrate import ImpactRule
+from .._scene import Scene
 from ..methods._paths import _simulate_chunk, dpim_inputs, monte_carlo_inputs, path_forcing
 from .accuracy import ALPHA, GAMMA, D, R, grids, paper_scene
 from .record import record, record_lines
@@ -284,12 +285,33 @@ def plain_scan(n_paths: int, n_steps: int, devices, *, dtype: str = "float32"):
     return compile_s, lambda: jax.block_until_ready(compiled(keys))
 
 
+# a barrier that no path of the reference scene reaches from x = 0 (x stays within a few units of it)
+UNREACHED_BARRIER = -50.0
+
+
+def layers(t_end: float) -> list[tuple[str, Scene]]:
+    """``(impacts, scene)`` of jdpim's rows in :func:`versus`, each adding one layer of the impact handling to the
+    last: the reference oscillator without a barrier (``"none"``), with the mirror rule, with located impacts and a
+    barrier no path reaches (``"locate, unreached"``, from ``x = 0`` at rest: the test of every step, no batch),
+    and the reference scene with located impacts (the batches of crossing paths too). All four start at rest at
+    ``x = 0``."""
+    scene = paper_scene(t_end, DT, GaussianNodes())
+    model = scene.model
+    return [
+        ("none", scene.replace(model=model.replace(barrier=None))),
+        ("mirror", scene.replace(impacts=ImpactRule(method="mirror"))),
+        ("locate, unreached", scene.replace(model=model.replace(barrier=UNREACHED_BARRIER), x0=0.0, v0=0.0)),
+        ("locate", scene.replace(impacts=ImpactRule(method="locate"))),
+    ]
+
+
 def versus(n_paths: int, t_end: float, repeats: int, *, log=print) -> list[dict]:
     """Path-steps per second of jdpim's Monte Carlo against the NumPy and plain JAX scan baselines, interleaved.
 
     The reference scene in float32 from rest, ``n_paths`` paths to ``t_end``: :func:`numpy_mcs` (one core),
-    :func:`plain_scan` and jdpim's Monte Carlo (``GaussianNodes``, the mirror rule and located impacts), each on
-    one device and on every local device. Every configuration is compiled ahead of time (``compile_s``) and
+    :func:`plain_scan` and jdpim's Monte Carlo (``GaussianNodes``; without a barrier, with the mirror rule, with
+    located impacts and a barrier no path reaches, and with located impacts: :func:`layers`), each on one device
+    and on every local device. Every configuration is compiled ahead of time (``compile_s``) and
     run once to warm up; then ``repeats`` rounds run each configuration once in turn, so that a load that
     comes and goes weighs on all alike; the median wall time and the median process CPU time (``cpu_s``, all
     threads) of the rounds. ``x_plain_scan``: path-steps per second over the plain scan's on as many devices;
@@ -301,8 +323,7 @@ def versus(n_paths: int, t_end: float, repeats: int, *, log=print) -> list[dict]
     for devices in device_sets:
         compile_s, run = plain_scan(n_paths, n_steps, devices)
         configs.append(("plain scan", "mirror", len(devices), compile_s, run))
-        for impacts in ("mirror", "locate"):
-            scene = paper_scene(t_end, DT, GaussianNodes(), impacts=ImpactRule(method=impacts))
+        for impacts, scene in layers(t_end):
             compile_s, run, _ = prepared("monte_carlo", scene, n_paths, devices=None if len(devices) == 1 else devices)
             configs.append(("jdpim monte_carlo", impacts, len(devices), compile_s, run))
     for *_, run in configs:
@@ -364,7 +385,11 @@ def run_versus(out: pathlib.Path, *, quick: bool = False, note: str | None = Non
     lines = record_lines(rec) + [
         f"The reference scene (alpha = gamma = 0.03, r = 0.98, D = 0.03, dt = {DT:g} s) from rest, float32: "
         "in-place NumPy RK4 (`numpy_mcs`, one core), the plain JAX `lax.scan` (`jax_mcs`, threefry normals per "
-        "step; `shard_map` over the devices) and jdpim's Monte Carlo (`GaussianNodes`), path-steps per second.",
+        "step; `shard_map` over the devices) and jdpim's Monte Carlo (`GaussianNodes`), path-steps per second. "
+        "jdpim's `impacts`, one layer of impact handling after another: `none`, the oscillator without its barrier; "
+        "`mirror`, the mirror rule; `locate, unreached`, located impacts and a barrier at x = "
+        f"{UNREACHED_BARRIER:g} that no path reaches (the test in every step, no crossing to resolve); `locate`, the "
+        "reference scene with located impacts (the default).",
         "",
         *_table(rows, cols),
     ]
