@@ -132,3 +132,22 @@ def test_the_jacobian_at_rest_is_one_program():
     assert again == [], again
     np.testing.assert_array_equal(first[1], np.float32([-2.0, -0.1]))  # computed in float32
     np.testing.assert_array_equal(second[1], np.float32([-3.0, -0.1]))
+
+
+@pytest.mark.slow
+def test_the_first_solve_bench_times_a_new_process_and_its_cache(tmp_path):
+    """``jdpim.bench.first_solve``: a new process without a cache compiles (no cache events); one with a new cache
+    compiles and stores its programs; one more with that cache loads every program and compiles none. Each row's
+    first call holds its own tracing, lowering and compilation."""
+    from jdpim.bench.first_solve import first_solve
+
+    def row(cache_dir):
+        return first_solve("dpim", "mirror", n=64, t_end=0.5, cache_dir=cache_dir, repeats=1)
+
+    none, new, filled = row(None), row(tmp_path), row(tmp_path)
+    assert none["cache_hits"] == none["cache_misses"] == 0 and none["compile_s"] > 0
+    assert new["cache_hits"] == 0 and new["cache_misses"] > 0 and any(tmp_path.iterdir())
+    assert filled["cache_misses"] == 0 and filled["cache_hits"] == new["cache_misses"]
+    for r in (none, new, filled):
+        assert 0 < r["trace_s"] + r["lower_s"] + r["compile_s"] < r["first_s"]
+        assert r["overhead_s"] == pytest.approx(r["first_s"] - r["warm_s"], abs=2e-3)

@@ -44,8 +44,7 @@ from .._models import VibroImpactOscillator
 from .._noise import WhiteNoise
 from .._scene import Scene
 from ..systems import impact_damper
-from .record import record, record_lines
-from .speed import _table as table_lines
+from .record import record, record_lines, table_lines
 from .timing import protocol, timed
 
 CUTOFF = 50.0  # rad/s: w_u dt = 2 at dt = 0.04

@@ -27,8 +27,7 @@ import time
 import numpy as np
 
 from .._cpu import usable_cores
-from .record import record, record_lines
-from .speed import _table
+from .record import record, record_lines, table_lines
 
 
 def _free_port() -> int:
@@ -162,7 +161,9 @@ def run_processes(
         f"warm runs including the x density; speed-up against the first row (1 process on 1 device, free to run "
         f"on every core); a process with fewer cores than the host is bound to its own"
     )
-    (out / "processes.md").write_text("\n".join([*record_lines(rec), title, "", *_table(rows, list(rows[0]))]) + "\n")
+    (out / "processes.md").write_text(
+        "\n".join([*record_lines(rec), title, "", *table_lines(rows, list(rows[0]))]) + "\n"
+    )
     return ["processes.json", "processes.md"]
 
 

@@ -60,3 +60,9 @@ def record_lines(rec: dict) -> list[str]:
         "",
         *([f"Note: {rec['note']}.", ""] if "note" in rec else []),
     ]
+
+
+def table_lines(rows: list[dict], cols: list[str]) -> list[str]:
+    """Markdown lines of ``rows`` in the columns ``cols``; a missing or ``None`` value is an empty cell."""
+    lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+    return lines + ["| " + " | ".join("" if r.get(c) is None else str(r[c]) for c in cols) + " |" for r in rows]

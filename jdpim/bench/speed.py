@@ -42,7 +42,7 @@ from .._integrate import ImpactRule
 from .._scene import Scene
 from ..methods._paths import _simulate_chunk, dpim_inputs, monte_carlo_inputs, path_forcing
 from .accuracy import ALPHA, GAMMA, D, R, grids, paper_scene
-from .record import record, record_lines
+from .record import record, record_lines, table_lines
 from .timing import prepared, protocol, timed
 
 T_END, DT = 200.0, 0.01
@@ -391,7 +391,7 @@ def run_versus(out: pathlib.Path, *, quick: bool = False, note: str | None = Non
         f"{UNREACHED_BARRIER:g} that no path reaches (the test in every step, no crossing to resolve); `locate`, the "
         "reference scene with located impacts (the default).",
         "",
-        *_table(rows, cols),
+        *table_lines(rows, cols),
     ]
     (out / f"{name}.md").write_text("\n".join(lines) + "\n")
     log("\n".join(lines))
@@ -425,12 +425,6 @@ def numpy_baseline(dtype: str, n_steps: int, *, quick: bool, log=print) -> list[
         )
         log(f"[speed]   numpy {rows[-1]}")
     return rows
-
-
-def _table(rows: list[dict], cols: list[str]) -> list[str]:
-    """Markdown lines of ``rows`` in the columns ``cols``; a missing or ``None`` value is an empty cell."""
-    lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
-    return lines + ["| " + " | ".join("" if r.get(c) is None else str(r[c]) for c in cols) + " |" for r in rows]
 
 
 def run_speed(out: pathlib.Path, *, quick: bool = False, log=print) -> list[str]:
@@ -515,11 +509,11 @@ def run_speed(out: pathlib.Path, *, quick: bool = False, log=print) -> list[str]
         "x_jax",
         "peak_rss_mib",
     ]
-    lines = record_lines(info["record"]) + _table(rows, cols)
+    lines = record_lines(info["record"]) + table_lines(rows, cols)
     lines.append("\nNumPy baseline (`numpy_mcs`: RK4, half-step Gaussian forcing, mirror rule; one core), per batch:\n")
-    lines += _table(baseline_rows, ["dtype", "n_paths", "n_steps", "repeats", "median_s", "path_steps_per_s"])
+    lines += table_lines(baseline_rows, ["dtype", "n_paths", "n_steps", "repeats", "median_s", "path_steps_per_s"])
     lines.append("\nPlain JAX baseline (`jax_mcs`: the same scheme as one jitted `lax.scan`; one device), per batch:\n")
-    lines += _table(jax_rows, ["dtype", "key", "n_paths", "n_steps", "compile_s", "median_s", "path_steps_per_s"])
+    lines += table_lines(jax_rows, ["dtype", "key", "n_paths", "n_steps", "compile_s", "median_s", "path_steps_per_s"])
     for dtype, b in best.items():
         lines.append(f"\nBaseline {dtype} (`x_numpy` of the {dtype} rows): {b['n_paths']} paths per batch, ")
         lines[-1] += f"{b['path_steps_per_s']:.3g} path-steps/s."
