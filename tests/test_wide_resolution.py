@@ -67,14 +67,16 @@ def lane_states():
     return lanes
 
 
-# The default tier runs the two one-degree-of-freedom scenes (one program: crossings served by the wide batch and the
-# lanes, rounds run on every row without branches, and the restart of paths at rest) and the held walls of several
-# degrees of freedom (the only wide run of held events). Slow: further scenes of the same resolution, each a program of
-# its own. Sub-steps from rest: the per-path step column goes through the batch's rows as in
+# The wide resolution serves only an accelerator's wide chunks; these tests force it on a CPU. The default tier runs
+# the two one-degree-of-freedom scenes (one program: crossings served by the wide batch and the lanes, rounds run on
+# every row without branches, and the restart of paths at rest). Slow: further scenes, each a program of its own.
+# Sub-steps from rest: the per-path step column goes through the batch's rows as in
 # test_hard_cases.py::test_substeps_are_per_path, the restart as in [at rest on the barrier]. Spectral forcing: other
-# excitation columns, packed and gathered as in [all cross at once]. Impact damper: the impacts of several degrees of
-# freedom, resolved wide as in [held on the walls] (the same structure under a filter).
-FURTHER = ("sub-steps from rest", "spectral forcing", "impact damper")
+# excitation columns, packed and gathered as in [all cross at once]. Impact damper and held on the walls: the events
+# of several degrees of freedom, which the suite resolves in compact batches
+# (test_mdof_sticking.py::test_held_paths_under_filtered_noise_stay_finite_admissible_and_held), resolved wide on
+# every row without branches as [all cross at once] resolves one degree of freedom's.
+FURTHER = ("sub-steps from rest", "spectral forcing", "impact damper", "held on the walls")
 
 
 @pytest.mark.parametrize(
@@ -142,6 +144,10 @@ def test_compact_batches_give_the_same_states_whatever_their_rows(name, monkeypa
     np.testing.assert_allclose(_states(SCENES[name](), 256, False, monkeypatch), default, rtol=0, atol=rounding)
 
 
+# slow: reverse mode through the wide batch's rounds without branches; the suite differentiates the compact batches in
+# reverse mode (test_mdof_sticking.py::test_reverse_mode_from_rest_on_a_wall_is_finite_and_equals_forward_mode) and
+# runs the wide batch forward ([all cross at once])
+@pytest.mark.slow
 def test_reverse_mode_through_the_wide_resolution(monkeypatch):
     """Reverse mode (``jax.value_and_grad``) of E[x^2] at t = 0.5 s with respect to the restitution, through the
     wide resolution (64 paths from the barrier's side, every one crossing at once, so the lanes serve most of them
