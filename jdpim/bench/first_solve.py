@@ -20,6 +20,7 @@ import subprocess
 import sys
 import tempfile
 
+from .._integrate import ImpactRule
 from .accuracy import ALPHA, GAMMA, D, R
 from .record import record, record_lines, table_lines
 
@@ -79,6 +80,7 @@ def first_solve(method: str, impacts: str, *, n: int, t_end: float, cache_dir=No
     0 without ``cache_dir``)."""
     if method not in SIZES:
         raise ValueError(f"method must be one of {sorted(SIZES)}, got {method!r}")
+    ImpactRule(method=impacts)  # its error here, not from the new process
     args = {"method": method, "impacts": impacts, "n": n, "t_end": t_end, "dt": DT, "repeats": repeats}
     args["cache_dir"] = None if cache_dir is None else str(cache_dir)
     # the process uses the cache it is given and no other: not one that the environment names (a test session's)
