@@ -22,7 +22,7 @@ import tempfile
 
 from .._integrate import ImpactRule
 from .accuracy import ALPHA, GAMMA, D, R
-from .record import record, record_lines, table_lines
+from .record import record, record_lines, table_lines, write_record
 
 DT = 0.01
 # the reference scene's sizes: Monte Carlo 1e4 paths to t = 50 s, DPIM 1000 points to t = 200 s
@@ -122,28 +122,12 @@ def run_first_solve(out: pathlib.Path, *, quick: bool = False, processes: int = 
         "(an empty one, filled by this process), filled (the one the process before filled)"
     )
     info = {"record": rec, "scene": {"alpha": ALPHA, "gamma": GAMMA, "r": R, "D": D, "dt": DT}, "rows": rows}
-    out.mkdir(parents=True, exist_ok=True)
-    name = "first_solve_quick" if quick else "first_solve"
-    (out / f"{name}.json").write_text(json.dumps(info, indent=1) + "\n")
-    cols = [
-        "method",
-        "impacts",
-        "n",
-        "t_end",
-        "devices",
-        "cache",
-        "first_s",
-        "warm_s",
-        "overhead_s",
-        "overhead_range_s",
-    ]
-    cols += ["trace_s", "lower_s", "compile_s", "cache_hits", "cache_misses", "import_s"]
+    cols = "method impacts n t_end devices cache first_s warm_s overhead_s overhead_range_s".split()
+    cols += "trace_s lower_s compile_s cache_hits cache_misses import_s".split()
     lines = record_lines(rec) + [
         f"The reference scene (alpha = gamma = 0.03, r = 0.98, D = 0.03, dt = {DT:g} s) from rest, float32, each "
         "method's default forcing; a new process's default devices (`devices`: it calls no `jdpim.use_cpu_cores`).",
         "",
         *table_lines(rows, cols),
     ]
-    (out / f"{name}.md").write_text("\n".join(lines) + "\n")
-    log("\n".join(lines))
-    return [f"{name}.json", f"{name}.md"]
+    return write_record(out, "first_solve_quick" if quick else "first_solve", info, lines, log=log)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import datetime
+import json
 import os
 import pathlib
 import platform
@@ -66,3 +67,13 @@ def table_lines(rows: list[dict], cols: list[str]) -> list[str]:
     """Markdown lines of ``rows`` in the columns ``cols``; a missing or ``None`` value is an empty cell."""
     lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     return lines + ["| " + " | ".join("" if r.get(c) is None else str(r[c]) for c in cols) + " |" for r in rows]
+
+
+def write_record(out: pathlib.Path, name: str, info: dict, lines: list[str], *, log=print) -> list[str]:
+    """Write ``info`` to ``out/name.json`` and ``lines`` to ``out/name.md`` (folders made as needed), log the Markdown
+    and return the two file names."""
+    out.mkdir(parents=True, exist_ok=True)
+    (out / f"{name}.json").write_text(json.dumps(info, indent=1) + "\n")
+    (out / f"{name}.md").write_text("\n".join(lines) + "\n")
+    log("\n".join(lines))
+    return [f"{name}.json", f"{name}.md"]

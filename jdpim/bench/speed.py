@@ -42,7 +42,7 @@ from .._integrate import ImpactRule
 from .._scene import Scene
 from ..methods._paths import _simulate_chunk, dpim_inputs, monte_carlo_inputs, path_forcing
 from .accuracy import ALPHA, GAMMA, D, R, grids, paper_scene
-from .record import record, record_lines, table_lines
+from .record import record, record_lines, table_lines, write_record
 from .timing import prepared, protocol, timed
 
 T_END, DT = 200.0, 0.01
@@ -377,9 +377,6 @@ def run_versus(out: pathlib.Path, *, quick: bool = False, note: str | None = Non
     if note:
         rec["note"] = note
     info = {"record": rec, "scene": {"alpha": ALPHA, "gamma": GAMMA, "r": R, "D": D, "dt": DT}, "rows": rows}
-    out.mkdir(parents=True, exist_ok=True)
-    name = "versus_quick" if quick else "versus"
-    (out / f"{name}.json").write_text(json.dumps(info, indent=1) + "\n")
     cols = ["code", "impacts", "devices", "n_paths", "n_steps", "compile_s", "median_s", "cpu_s"]
     cols += ["path_steps_per_s", "x_plain_scan", "x_numpy"]
     lines = record_lines(rec) + [
@@ -393,9 +390,7 @@ def run_versus(out: pathlib.Path, *, quick: bool = False, note: str | None = Non
         "",
         *table_lines(rows, cols),
     ]
-    (out / f"{name}.md").write_text("\n".join(lines) + "\n")
-    log("\n".join(lines))
-    return [f"{name}.json", f"{name}.md"]
+    return write_record(out, "versus_quick" if quick else "versus", info, lines, log=log)
 
 
 def numpy_baseline(dtype: str, n_steps: int, *, quick: bool, log=print) -> list[dict]:
