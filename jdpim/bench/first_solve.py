@@ -21,6 +21,7 @@ import sys
 import tempfile
 
 from .._integrate import ImpactRule
+from .._pytree import check_int, check_number
 from .accuracy import ALPHA, GAMMA, D, R
 from .record import record, record_lines, table_lines, write_record
 
@@ -80,7 +81,9 @@ def first_solve(method: str, impacts: str, *, n: int, t_end: float, cache_dir=No
     0 without ``cache_dir``)."""
     if method not in SIZES:
         raise ValueError(f"method must be one of {sorted(SIZES)}, got {method!r}")
-    ImpactRule(method=impacts)  # its error here, not from the new process
+    ImpactRule(method=impacts)  # its errors here, not from the new process
+    n, repeats = check_int("n", n, low=2), check_int("repeats", repeats, low=1)
+    t_end = check_number("t_end", t_end, low=0.0, low_open=True)
     args = {"method": method, "impacts": impacts, "n": n, "t_end": t_end, "dt": DT, "repeats": repeats}
     args["cache_dir"] = None if cache_dir is None else str(cache_dir)
     # the process uses the cache it is given and no other: not one that the environment names (a test session's)
