@@ -49,6 +49,9 @@ def main(argv=None, *, from_program=None) -> int:
     speed.add_argument(
         "--first-solve", action="store_true", help="only the first solve in a new process against warm solves"
     )
+    speed.add_argument(
+        "--kernels", action="store_true", help="only the kernels of a run, grouped per step, batch and impact round"
+    )
     speed.add_argument("--note", default=None, help="a note for the record (e.g. that the machine was shared)")
     mdof = sub.add_parser("mdof", help="impact damper: dt convergence against a small-dt reference, speed per dof")
     mdof.add_argument("--quick", action="store_true", help="t_end 20 s, 4000 paths; speed at 1e4 paths, t = 50 s")
@@ -117,6 +120,10 @@ def main(argv=None, *, from_program=None) -> int:
             from .first_solve import run_first_solve
 
             files = run_first_solve(args.out, quick=args.quick, log=lambda s: print(s, flush=True))
+        elif args.kernels:
+            from .kernels import run_kernels
+
+            files = run_kernels(args.out, quick=args.quick, log=lambda s: print(s, flush=True))
         elif args.versus:
             files = run_versus(args.out, quick=args.quick, note=args.note, log=lambda s: print(s, flush=True))
         else:
