@@ -14,7 +14,16 @@ import numpy as np
 import pytest
 
 import jdpim
-from jdpim._engine.batches import compact_depth, compact_rows, first_in_lanes, pending_in_runs, tree, until_done
+from jdpim._engine.batches import (
+    PREFIX_MAX,
+    compact_depth,
+    compact_rows,
+    first_in_lanes,
+    first_true,
+    pending_in_runs,
+    tree,
+    until_done,
+)
 from jdpim._engine.locate import locate_crossing
 from jdpim._engine.resolve import resolve_one
 from jdpim._engine.sticking import departure
@@ -230,6 +239,18 @@ def test_first_in_lanes_is_the_first_true_entry_of_each_run(n, lanes):
         starts = range(0, lanes * group, group)
         expected = [next((i for i in range(lo, min(lo + group, n)) if mask[i]), n) for lo in starts]
         np.testing.assert_array_equal(np.asarray(first_in_lanes(jnp.asarray(mask), lanes)), expected)
+
+
+@pytest.mark.parametrize(("m", "size"), [(1, 1), (2, 8), (33, 16), (640, 160), (1000, 1000), (PREFIX_MAX + 1, 64)])
+def test_first_true_gives_the_indices_of_nonzero(m, size):
+    """The first ``size`` true entries in order, ``m`` past the last, as ``jnp.nonzero`` gives them: by matrix
+    products up to ``PREFIX_MAX`` entries, by ``jnp.nonzero`` beyond."""
+    rng = np.random.default_rng(m)
+    pick = jax.jit(first_true, static_argnums=1)
+    for density in (0.0, 0.02, 0.3, 1.0):
+        mask = jnp.asarray(rng.random(m) < density)
+        expected = np.asarray(jnp.nonzero(mask, size=size, fill_value=m)[0])
+        np.testing.assert_array_equal(np.asarray(pick(mask, size)), expected)
 
 
 def test_a_batch_crossing_together_matches_its_paths_alone():
