@@ -36,7 +36,6 @@ from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from .._cpu import on_cpu
 from .elementwise import along_paths
@@ -245,6 +244,13 @@ PREFIX_MAX = 4096
 PREFIX_BLOCK = 32
 
 
+def _triangle(k: int, offset: int):
+    """``(k, k)`` float32, 1 where ``column - row >= offset``: built from indices in the program, not a constant that
+    reverse mode would list among its residuals."""
+    index = jnp.arange(k)
+    return (index[None, :] - index[:, None] >= offset).astype(jnp.float32)
+
+
 def first_true(mask, size: int):
     """Indices of the first ``size`` true entries of ``mask`` (``(m,)`` bool) in order, ``m`` past the last: the
     indices of ``jnp.nonzero(mask, size=size, fill_value=m)``.
@@ -260,10 +266,8 @@ def first_true(mask, size: int):
         return jnp.nonzero(mask, size=size, fill_value=m)[0].astype(jnp.int32)
     blocks = -(-m // PREFIX_BLOCK)
     ones = jnp.pad(mask, (0, blocks * PREFIX_BLOCK - m)).reshape(blocks, PREFIX_BLOCK).astype(jnp.float32)
-    upper = np.triu(np.ones((PREFIX_BLOCK, PREFIX_BLOCK), np.float32))
-    within = jnp.dot(ones, upper, precision=jax.lax.Precision.HIGHEST)
-    lower = np.tril(np.ones((blocks, blocks), np.float32), -1)
-    before = jnp.dot(lower, within[:, -1], precision=jax.lax.Precision.HIGHEST)
+    within = jnp.dot(ones, _triangle(PREFIX_BLOCK, 0), precision=jax.lax.Precision.HIGHEST)
+    before = jnp.dot(_triangle(blocks, 1).T, within[:, -1], precision=jax.lax.Precision.HIGHEST)
     rank = (within + before[:, None]).reshape(-1)[:m].astype(jnp.int32) - 1
     target = jnp.where(mask, rank, size)  # size: beyond the output, dropped
     return jnp.full((size,), m, jnp.int32).at[target].set(jnp.arange(m, dtype=jnp.int32), mode="drop")

@@ -85,8 +85,11 @@ def crossing_time(rule: ImpactRule, h, y0, tau0, y1, last, geo, held=None):
     on = crossing & ((c0 == 0) | (jnp.arange(c0.shape[0]) == last))
     span = jnp.where(crossing, (1.0 - tau0) * h, h)
     s_all = locate_crossing(rc0, dot(geo.normal, v0), rc1, dot(geo.normal, v1), span, rule.newton_iterations, on)
-    j = jnp.zeros((), jnp.int32) if one else jnp.argmin(jnp.where(crossing, s_all, 2.0)).astype(jnp.int32)
-    return hit, stored(j), stored(tau0 + pick(s_all, j) * (1.0 - tau0))
+    if one:  # a constant: nothing to store
+        j = jnp.zeros((), jnp.int32)
+    else:
+        j = stored(jnp.argmin(jnp.where(crossing, s_all, 2.0)).astype(jnp.int32))
+    return hit, j, stored(tau0 + pick(s_all, j) * (1.0 - tau0))
 
 
 def first_crossing(model, rule: ImpactRule, h, y0, tau0, y1, last, e):
