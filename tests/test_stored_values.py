@@ -8,7 +8,7 @@ import pytest
 from conftest import DT_SMALL, N_SMALL, T_SMALL
 
 import jdpim
-from jdpim._engine import batches, elementwise, locate, resolve
+from jdpim._engine import batches, elementwise, locate, resolve, rk4
 
 
 @pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64, jnp.int32])
@@ -63,7 +63,8 @@ SCENES = {
 
 
 # slow: [held on the walls] repeats on a third scene what [impact damper] checks (several degrees of freedom, every
-# store of locate.py and resolve.py left out); that each store is its value bit for bit, test_stored_is_the_value_itself
+# store of locate.py, resolve.py and rk4.py left out); that each store is its value bit for bit,
+# test_stored_is_the_value_itself
 @pytest.mark.parametrize(
     "name", [pytest.param(name, marks=pytest.mark.slow) if name == "held on the walls" else name for name in SCENES]
 )
@@ -74,7 +75,7 @@ def test_storing_changes_no_state_beyond_its_last_bits(name, monkeypatch):
     units in the last place)."""
     scene, method = SCENES[name][0](), SCENES[name][1]
     stored = np.asarray(jdpim.solve(scene, method).states)
-    for module in (locate, resolve):  # every user of the stored values
+    for module in (locate, resolve, rk4):  # every user of the stored values
         monkeypatch.setattr(module, "stored", lambda x: x)
     jax.clear_caches()
     plain = np.asarray(jdpim.solve(scene, method).states)

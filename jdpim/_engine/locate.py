@@ -101,4 +101,4 @@ def first_crossing(model, rule: ImpactRule, h, y0, tau0, y1, last, e):
     """
     geo = geometry(model.stacked_constraints(), y0[0].dtype)
     hit, j, theta = crossing_time(rule, h, y0, tau0, y1, last, geo)
-    return geo, hit, j, theta, tuple(map(stored, rk4(model, *y0, e, h, tau0, theta)))
+    return geo, hit, j, theta, tuple(map(stored, rk4(model, *y0, e, h, tau0, theta, store=True)))

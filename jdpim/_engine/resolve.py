@@ -32,7 +32,7 @@ def resolve_one(model, rule: ImpactRule, h, y0, tau0, y1, last, e):
         stick = (r * jnp.abs(dot(normal, vc)) < rule.stick_velocity) & pushes_in
         tau_d = stored(departure(model, e, theta, normal, q_plus))  # rest at (q_plus, 0) until the force pulls away
         v_plus, theta = jnp.where(stick, rest, v_plus), jnp.where(stick, tau_d, theta)
-    qr, vr = rk4(model, q_plus, v_plus, e, h, theta, 1.0)  # on from the bounce, or from the departure
+    qr, vr = rk4(model, q_plus, v_plus, e, h, theta, 1.0, store=True)  # on from the bounce, or the departure
     new_y0 = (jnp.where(hit, q_plus, q0), jnp.where(hit, v_plus, v0))
     new_y1 = (jnp.where(hit, qr, q1), jnp.where(hit, vr, v1))
     return new_y0, jnp.where(hit, theta, tau0), new_y1, jnp.where(hit, j, last)
@@ -62,7 +62,7 @@ def resolve_held(model, rule: ImpactRule, h, y0, tau0, y1, force, last, held, lo
     off_first = (held >= 0) & (s_off < 1) & (~hit | (tau_off <= theta))
     event = off_first | hit
     tau_e = stored(jnp.where(off_first, tau_off, jnp.where(hit, theta, 1.0)))
-    q_e, v_e = map(stored, held_rk4(model, geo, q0, v0, e, h, tau0, tau_e, held)[:2])
+    q_e, v_e = map(stored, held_rk4(model, geo, q0, v0, e, h, tau0, tau_e, held, store=True)[:2])
     # the impact on j at theta: a bounce, or held from theta on
     normal, position, r, push, onto, unit, keep, _ = (pick(a, j) for a in geo)
     q_plus = dot(onto, q_e) + position * unit
@@ -75,7 +75,7 @@ def resolve_held(model, rule: ImpactRule, h, y0, tau0, y1, force, last, held, lo
     v_a = jnp.where(impact, jnp.where(stick, v_slide, v_slide + r * jnp.abs(u) * push), v_e)
     q_a, v_a = stored(q_a), stored(v_a)
     held_after = jnp.where(impact & stick, j, -1).astype(jnp.int32)
-    q_end, v_end, f_end = held_rk4(model, geo, q_a, v_a, e, h, tau_e, 1.0, held_after)
+    q_end, v_end, f_end = held_rk4(model, geo, q_a, v_a, e, h, tau_e, 1.0, held_after, store=True)
 
     def choose(new, old):
         return jnp.where(event, new, old)

@@ -7,7 +7,7 @@ import jax
 import jax.numpy as jnp
 
 from .._constraints import dot
-from .elementwise import pick
+from .elementwise import pick, stored
 
 
 def forcing(e, tau):
@@ -20,13 +20,20 @@ def forcing(e, tau):
     return l0 * e[0] + lm * e[1] + l1 * e[2]
 
 
-def rk4(model, q, v, e, h, ta=0.0, tb=1.0):
-    """One RK4 step of one path (``q``, ``v``: ``(d,)``) from step fraction ``ta`` to ``tb`` (step length ``h``, s)."""
+def rk4(model, q, v, e, h, ta=0.0, tb=1.0, store: bool = False):
+    """One RK4 step of one path (``q``, ``v``: ``(d,)``) from step fraction ``ta`` to ``tb`` (step length ``h``, s).
+
+    ``store``: with several coordinates, each stage's acceleration is computed once into memory (:func:`stored`). A
+    fusion that writes the ``(k, d)`` end state computes the stages for every one of its ``d`` columns otherwise;
+    on a batch of a few hundred rows (an impact's steps to and from its crossing) storing them costs less than that,
+    on every path's plain step more (measured on the impact damper).
+    """
     H = (tb - ta) * h
     tm = 0.5 * (ta + tb)
+    once = stored if store and q.shape[0] > 1 else (lambda a: a)
 
     def f(tau, q, v):
-        return v, model.state_acceleration(q, v, forcing(e, tau))
+        return v, once(model.state_acceleration(q, v, forcing(e, tau)))
 
     k1x, k1v = f(ta, q, v)
     k2x, k2v = f(tm, q + 0.5 * H * k1x, v + 0.5 * H * k1v)
@@ -35,14 +42,15 @@ def rk4(model, q, v, e, h, ta=0.0, tb=1.0):
     return (q + H / 6.0 * (k1x + 2.0 * k2x + 2.0 * k3x + k4x), v + H / 6.0 * (k1v + 2.0 * k2v + 2.0 * k3v + k4v))
 
 
-def held_rk4(model, geo, q, v, e, h, ta, tb, k):
+def held_rk4(model, geo, q, v, e, h, ta, tb, k, store: bool = False):
     """RK4 of one path held on constraint ``k`` (``k < 0``: free) from step fraction ``ta`` to ``tb``.
 
     Held, the path moves on the plane ``c_k = 0`` with ``n_k . v = 0``: every stage's acceleration loses its
     normal part, ``a - (n_k . a) push_k`` (the contact force that keeps ``n_k . a = 0``; for a mass-mass
     contact the pair moves as one body), and the end state is put back onto the plane against rounding.
     Returns ``(q, v, f)``, ``f`` ``(4,)`` the free normal acceleration ``n_k . a`` at the four stages
-    (fractions ``ta``, the midpoint twice, ``tb``): the contact holds while it is not positive.
+    (fractions ``ta``, the midpoint twice, ``tb``): the contact holds while it is not positive. ``store``: each
+    stage's acceleration computed once into memory, as :func:`rk4` does.
     """
     held = k >= 0
     kk = jnp.maximum(k, 0)
@@ -51,9 +59,10 @@ def held_rk4(model, geo, q, v, e, h, ta, tb, k):
     )
     H = (tb - ta) * h
     tm = 0.5 * (ta + tb)
+    once = stored if store and q.shape[0] > 1 else (lambda a: a)
 
     def f(tau, q, v):
-        a = model.state_acceleration(q, v, forcing(e, tau))
+        a = once(model.state_acceleration(q, v, forcing(e, tau)))
         fn = dot(normal, a)
         return v, jnp.where(held, a - fn * push, a), fn
 
