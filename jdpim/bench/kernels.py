@@ -2,7 +2,7 @@
 paths, per impact round.
 
 On a CPU a located impact's cost is set by the number of kernels its batch and its rounds launch more than by their
-arithmetic: a batch has a few hundred rows, and each kernel costs about a microsecond whatever its size.
+arithmetic: a batch has a few hundred rows, and each of its kernels takes about as long whatever its size.
 :func:`kernel_profile` compiles the run of a scene's paths ahead of time, runs it once to warm up, and runs it once
 more under JAX's profiler; every kernel of the compiled program (an HLO instruction; loops and conditionals, whose
 time includes the kernels inside them, are left out) is counted by its number of calls. Kernels that run the same
