@@ -43,6 +43,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._cpu import on_cpu
 from ._distributions import ANGLE
 from ._evolutionary import AbstractEvolutionarySpectrum
 from ._normals import normal_pair
@@ -523,8 +524,33 @@ def _mix(X, Y, grid: SpectralGrid, mixing):
     return jnp.einsum("ij,jk->ik", mixing.astype(c.dtype), c)
 
 
+# on a CPU, the paths of a chunk go through the FFT in blocks whose arrays (the padded spectrum, the FFT's output and
+# its time-major copy) take at most about this many bytes, shared by the CPU's devices (one per core, each running its
+# own blocks), so that they stay in the last-level cache between the FFT and the copy; a block's paths are a multiple
+# of SYNTHESIS_ROWS (XLA's CPU FFT and copies are slower otherwise)
+SYNTHESIS_BLOCK_BYTES = 24 * 2**20
+SYNTHESIS_ROWS = 16
+
+
+def synthesis_rows(n_paths: int, m: int, n_fft: int, itemsize: int) -> int:
+    """Paths per block of :func:`synthesize`: the fewest equal blocks whose FFT arrays (about ``3 m n_fft`` values of
+    ``itemsize`` bytes per path) fit a device's share of ``SYNTHESIS_BLOCK_BYTES``, rounded up to a multiple of
+    ``SYNTHESIS_ROWS``; every path at once off a CPU (an accelerator's FFT gains from the whole batch)."""
+    if not on_cpu():
+        return n_paths
+    budget = SYNTHESIS_BLOCK_BYTES // jax.local_device_count()
+    blocks = -(-n_paths * 3 * m * n_fft * itemsize // budget)
+    rows = -(-n_paths // blocks)
+    return min(n_paths, -(-rows // SYNTHESIS_ROWS) * SYNTHESIS_ROWS)
+
+
 def synthesize(coefficients: jnp.ndarray, grid: SpectralGrid) -> jnp.ndarray:
-    """Excitation on the half-step grid for a batch of paths, by one inverse real FFT.
+    """Excitation on the half-step grid for a batch of paths, by one inverse real FFT per path.
+
+    On a CPU the paths go through the FFT in blocks of :func:`synthesis_rows` (a ``fori_loop``), each block written
+    into the time-major result; each path's values are those of one FFT over the whole batch, bit for bit (the FFT
+    transforms every path apart). The last block starts ``n_paths - rows`` paths in, so it may redo paths of the
+    block before it, with the same values.
 
     Args:
         coefficients: shape ``(n_paths, m, K + 1)``, complex (k = 0..K).
@@ -533,7 +559,23 @@ def synthesize(coefficients: jnp.ndarray, grid: SpectralGrid) -> jnp.ndarray:
     Returns:
         ``xi(t_j)`` at ``t_j = j dt / 2``, j = 0..2 n_steps, time-major: shape ``(n_half, n_paths, m)``.
     """
-    n_paths, m, K1 = coefficients.shape
+    n_paths, m, _ = coefficients.shape
+    rows = synthesis_rows(n_paths, m, grid.n_fft, coefficients.real.dtype.itemsize)
+    if rows == n_paths:
+        return _synthesize_block(coefficients, grid)
+
+    def one_block(b, x):
+        start = jnp.minimum(b * rows, n_paths - rows)
+        block = jax.lax.dynamic_slice_in_dim(coefficients, start, rows, axis=0)
+        return jax.lax.dynamic_update_slice_in_dim(x, _synthesize_block(block, grid), start, axis=1)
+
+    x = jnp.zeros((grid.n_half, n_paths, m), coefficients.real.dtype)
+    return jax.lax.fori_loop(0, -(-n_paths // rows), one_block, x)
+
+
+def _synthesize_block(coefficients: jnp.ndarray, grid: SpectralGrid) -> jnp.ndarray:
+    """:func:`synthesize` of ``coefficients`` ``(rows, m, K + 1)`` in one inverse real FFT: ``(n_half, rows, m)``."""
+    _, _, K1 = coefficients.shape
     spec = jnp.moveaxis(coefficients, -1, 0)
     spec = spec.at[0].multiply(2.0)  # irfft halves the (real) DC bin relative to the others
     spec = jnp.pad(spec, ((0, grid.n_fft // 2 + 1 - K1), (0, 0), (0, 0)))

@@ -33,6 +33,61 @@ def test_fft_synthesis_equals_direct_sum(grid):
     np.testing.assert_allclose(xi, direct_sum(c, grid, times), atol=2e-4 * np.abs(xi).max())
 
 
+def _random_coefficients(n, grid, seed=0):
+    rng = np.random.default_rng(seed)
+    shape = (n, 1, grid.n_terms + 1)
+    return jnp.asarray(rng.standard_normal(shape) + 1j * rng.standard_normal(shape), jnp.complex64)
+
+
+def test_synthesis_in_blocks_equals_one_fft(grid, monkeypatch):
+    """On a CPU the paths go through the FFT in blocks (here 3 of 16 rows for 40 paths, the last one redoing 8 of
+    the second's): the same values, bit for bit, as one FFT over every path."""
+    c = _random_coefficients(40, grid)
+    monkeypatch.setattr(ex, "SYNTHESIS_BLOCK_BYTES", 16 * 3 * grid.n_fft * 4 * jax.local_device_count())
+    assert ex.synthesis_rows(40, 1, grid.n_fft, 4) == 16
+    blocked = np.asarray(jax.jit(ex.synthesize, static_argnums=1)(c, grid))
+    whole = np.asarray(jax.jit(ex._synthesize_block, static_argnums=1)(c, grid))
+    assert blocked.shape == (grid.n_half, 40, 1)
+    np.testing.assert_array_equal(blocked, whole)
+
+
+def test_synthesis_in_blocks_is_differentiated_as_one_fft(grid, monkeypatch):
+    c = _random_coefficients(40, grid, seed=1)
+    monkeypatch.setattr(ex, "SYNTHESIS_BLOCK_BYTES", 16 * 3 * grid.n_fft * 4 * jax.local_device_count())
+    assert ex.synthesis_rows(40, 1, grid.n_fft, 4) == 16
+
+    def energy(scale, synthesize):
+        x = synthesize(scale * c, grid)
+        return jnp.sum(x * x * jnp.arange(x.shape[1])[None, :, None])  # weights every path apart
+
+    blocked = jax.grad(energy)(1.0, ex.synthesize)
+    whole = jax.grad(energy)(1.0, ex._synthesize_block)
+    np.testing.assert_allclose(blocked, whole, rtol=1e-6)
+
+
+@pytest.mark.parametrize("n_paths", [1, 15, 16, 17, 512, 10_000])
+@pytest.mark.parametrize("n_fft", [64, 4320, 40500])
+def test_synthesis_rows(n_paths, n_fft):
+    rows = ex.synthesis_rows(n_paths, 1, n_fft, 4)
+    per_path = 3 * n_fft * 4
+    budget = ex.SYNTHESIS_BLOCK_BYTES // jax.local_device_count()  # the devices share the cache
+    assert 1 <= rows <= n_paths
+    assert rows == n_paths or rows % ex.SYNTHESIS_ROWS == 0
+    assert rows * per_path <= budget + ex.SYNTHESIS_ROWS * per_path  # a block within the device's budget
+    assert rows < n_paths or n_paths * per_path <= budget + ex.SYNTHESIS_ROWS * per_path
+
+
+def test_the_cpu_devices_share_the_synthesis_budget(monkeypatch):
+    one = ex.synthesis_rows(512, 1, 40500, 4)
+    monkeypatch.setattr(jax, "local_device_count", lambda: 2)
+    assert ex.synthesis_rows(512, 1, 40500, 4) < one
+
+
+def test_synthesis_takes_every_path_at_once_off_a_cpu(monkeypatch):
+    monkeypatch.setattr(ex, "on_cpu", lambda: False)
+    assert ex.synthesis_rows(10_000, 1, 40500, 4) == 10_000
+
+
 def test_gaussian_variance_normalisation(grid):
     """E[xi^2] = 2 S0 (w_u + dw / 2) with S0 = D / pi; 4000 paths give a 2.2 % standard error."""
     D, n = 0.3, 4000
