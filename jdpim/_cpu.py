@@ -1,8 +1,8 @@
 """Every CPU core as a JAX device, so that the path axis is split over the cores.
 
-XLA runs one compiled program on one core, apart from a few multi-threaded operations (the FFT), so a
-single CPU device leaves the other cores mostly idle. Presented as several devices, the CPU runs one
-shard of paths per core at once (``dpim`` and ``monte_carlo`` shard over every local device).
+XLA's thread pool spreads only part of one compiled program's work over the cores of a CPU, so a single CPU device
+leaves the other cores mostly idle or spinning (docs/speed.md measures it). Presented as several devices, the
+CPU runs one shard of paths per core at once (``dpim`` and ``monte_carlo`` shard over every local device).
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import jax
 
 from ._pytree import check_int
 
-_FLAG = re.compile(r"--xla_force_host_platform_device_count=(\d+)")
+DEVICE_COUNT_FLAG = re.compile(r"--xla_force_host_platform_device_count=(\d+)")
 
 
 def on_cpu() -> bool:
@@ -50,7 +50,7 @@ def use_cpu_cores(n: int | None = None) -> int:
     """
     if n is not None:
         n = check_int("n", n, low=1)
-    elif (flag := _FLAG.search(os.environ.get("XLA_FLAGS", ""))) is not None:
+    elif (flag := DEVICE_COUNT_FLAG.search(os.environ.get("XLA_FLAGS", ""))) is not None:
         return int(flag.group(1))
     elif os.environ.get("JAX_NUM_CPU_DEVICES"):
         n = check_int("JAX_NUM_CPU_DEVICES", int(os.environ["JAX_NUM_CPU_DEVICES"]), low=1)

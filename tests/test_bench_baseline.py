@@ -1,4 +1,5 @@
-"""The speed bench's NumPy and plain JAX baselines integrate the same oscillator as jdpim, in distribution.
+"""The speed bench's NumPy and plain JAX baselines integrate the same oscillator as jdpim, in distribution; its rows of
+one core run on one core.
 
 Second moments at a fixed seed against the exact r = 1 solution (the mirror rule is exact there: it is the
 folding of the free oscillator) and against jdpim's Monte Carlo of the reference scene. Tolerance: four
@@ -11,7 +12,17 @@ import pytest
 
 import jdpim
 from jdpim import exact
-from jdpim.bench.speed import JAX_KEY_IMPLS, UNREACHED_BARRIER, jax_mcs, layers, numpy_mcs
+from jdpim._cpu import usable_cores
+from jdpim.bench.speed import (
+    JAX_KEY_IMPLS,
+    UNREACHED_BARRIER,
+    jax_mcs,
+    layers,
+    numpy_mcs,
+    on_one_core,
+    one_core,
+    one_core_env,
+)
 
 N_PATHS, T = 20_000, 10.0
 
@@ -78,3 +89,22 @@ def test_layers_of_impact_handling_differ_by_one_layer_each():
     assert free[..., 0].min() > UNREACHED_BARRIER / 5
     assert scenes["mirror"].impacts.method == "mirror" and scenes["locate"].impacts.method == "locate"
     assert scenes["mirror"].model == scenes["locate"].model and scenes["locate"].model.barrier == 0.0
+
+
+def test_rows_of_one_core_run_on_one_core_with_one_device(monkeypatch):
+    """``on_one_core`` runs its code in a process that may use one core (the first of this process's), on one JAX
+    device whatever device count this process was given; other XLA flags pass on. Where this process has one core,
+    there is nothing to restrict and nothing runs."""
+    monkeypatch.setenv("XLA_FLAGS", "--xla_force_host_platform_device_count=2 --xla_cpu_enable_fast_math=false")
+    env = one_core_env()
+    assert env["JAX_NUM_CPU_DEVICES"] == "1" and env["XLA_FLAGS"] == "--xla_cpu_enable_fast_math=false"
+    code = (
+        "import json, os, sys\n"
+        "import jax\n"
+        "json.dump([sorted(os.sched_getaffinity(0)), jax.local_device_count()], open(sys.argv[-1], 'w'))\n"
+    )
+    result = on_one_core(code)
+    if usable_cores() < 2:
+        assert one_core() is None and result is None
+    else:
+        assert result == [[one_core()], 1]

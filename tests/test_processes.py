@@ -9,7 +9,7 @@ import sys
 import numpy as np
 
 import jdpim
-from jdpim.bench.processes import _core_shares
+from jdpim.bench.processes import core_shares
 
 WORKER = """
 import sys
@@ -75,7 +75,7 @@ def test_two_processes_give_the_results_of_one(tmp_path):
 
 def test_the_bench_binds_each_process_to_its_own_share_of_the_cores(monkeypatch):
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {7, 4, 6, 5}, raising=False)
-    assert _core_shares(2, 2) == ["4,5", "6,7"]
-    assert _core_shares(4, 1) == ["4", "5", "6", "7"]
-    assert _core_shares(1, 1) == ["4"]
-    assert _core_shares(1, 4) == [""]  # every core: left unbound
+    assert core_shares(2, 2) == ["4,5", "6,7"]
+    assert core_shares(4, 1) == ["4", "5", "6", "7"]
+    assert core_shares(1, 1) == ["4"]
+    assert core_shares(1, 4) == [""]  # every core: left unbound

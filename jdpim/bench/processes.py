@@ -77,7 +77,7 @@ def _worker(argv) -> None:
         pathlib.Path(out).write_text(json.dumps({"devices": len(jax.local_devices()), "rows": rows}))
 
 
-def _core_shares(processes: int, cores_per_process: int) -> list[str]:
+def core_shares(processes: int, cores_per_process: int) -> list[str]:
     """Contiguous shares of ``cores_per_process`` of this process's usable cores, one per process (``""``: all)."""
     cores = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
     if cores_per_process >= len(cores):
@@ -89,7 +89,7 @@ def _core_shares(processes: int, cores_per_process: int) -> list[str]:
 def _launch(processes: int, devices: int, cores_per_process: int, args: tuple, out: pathlib.Path) -> dict:
     port = _free_port()
     env = {**os.environ, "JAX_NUM_CPU_DEVICES": str(devices), "JAX_PLATFORMS": "cpu"}
-    shares = _core_shares(processes, cores_per_process)
+    shares = core_shares(processes, cores_per_process)
     procs = [
         subprocess.Popen(
             [sys.executable, "-m", "jdpim.bench.processes", str(i), str(processes), str(port), *map(str, args), out]

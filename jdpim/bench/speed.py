@@ -31,17 +31,22 @@ import os
 import pathlib
 import resource
 import statistics
+import subprocess
+import sys
+import tempfile
 import time
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._cpu import DEVICE_COUNT_FLAG, usable_cores
 from .._excitation import GaussianNodes, SpectralRepresentation
 from .._integrate import ImpactRule
 from .._scene import Scene
 from ..methods._paths import _simulate_chunk, dpim_inputs, monte_carlo_inputs, path_forcing
 from .accuracy import ALPHA, GAMMA, D, R, grids, paper_scene
+from .processes import core_shares
 from .record import record, record_lines, table_lines, write_record
 from .timing import prepared, protocol, timed
 
@@ -315,9 +320,11 @@ def versus(n_paths: int, t_end: float, repeats: int, *, log=print) -> list[dict]
     run once to warm up; then ``repeats`` rounds run each configuration once in turn, so that a load that
     comes and goes weighs on all alike; the median wall time and the median process CPU time (``cpu_s``, all
     threads) of the rounds. ``x_plain_scan``: path-steps per second over the plain scan's on as many devices;
-    ``x_numpy``: over NumPy's on one core.
+    ``x_numpy``: over NumPy's on one core. ``cores``: the cores this process may use (one device may use several:
+    XLA's thread pool runs part of a program on the other cores; :func:`versus_on_one_core` times one core).
     """
     n_steps = int(round(t_end / DT))
+    cores = usable_cores()
     device_sets = [jax.local_devices()[:1]] + ([jax.local_devices()] if jax.local_device_count() > 1 else [])
     configs = [("numpy", "mirror", 1, 0.0, lambda: numpy_mcs(n_paths, t_end=t_end, dtype="float32"))]
     for devices in device_sets:
@@ -343,6 +350,7 @@ def versus(n_paths: int, t_end: float, repeats: int, *, log=print) -> list[dict]
                 "code": code,
                 "impacts": impacts,
                 "devices": n_dev,
+                "cores": cores,
                 "n_paths": n_paths,
                 "n_steps": n_steps,
                 "compile_s": round(compile_s, 2) if code != "numpy" else None,
@@ -360,6 +368,51 @@ def versus(n_paths: int, t_end: float, repeats: int, *, log=print) -> list[dict]
     return rows
 
 
+def one_core() -> int | None:
+    """The CPU that :func:`on_one_core` runs on: the first of this process's (:func:`.processes.core_shares`);
+    ``None`` where the OS cannot restrict a process to some cores or this process has one core already."""
+    share = core_shares(1, 1)[0]
+    return int(share) if share else None
+
+
+def one_core_env() -> dict:
+    """The environment of :func:`versus_on_one_core`'s process: this one's, with one JAX CPU device."""
+    env = dict(os.environ, JAX_NUM_CPU_DEVICES="1")
+    flags = DEVICE_COUNT_FLAG.sub("", env.pop("XLA_FLAGS", "")).strip()
+    return env | ({"XLA_FLAGS": flags} if flags else {})
+
+
+def on_one_core(code: str, *args: str):
+    """Run the Python ``code`` in a new process restricted to :func:`one_core` before JAX starts (so that XLA's
+    thread pool has one thread), with one JAX device: ``sys.argv[1:]`` are ``args`` and then the path of a file, to
+    which ``code`` writes its result as JSON. Returns that result, or ``None`` where :func:`one_core` is ``None``."""
+    cpu = one_core()
+    if cpu is None:
+        return None
+    with tempfile.TemporaryDirectory() as tmp:
+        path = pathlib.Path(tmp) / "result.json"
+        bound = f"import os\nos.sched_setaffinity(0, {{{cpu}}})\n" + code  # before JAX starts its thread pool
+        subprocess.run([sys.executable, "-c", bound, *args, str(path)], env=one_core_env(), check=True)
+        return json.loads(path.read_text())
+
+
+def versus_on_one_core(n_paths: int, t_end: float, repeats: int, *, log=print) -> list[dict]:
+    """:func:`versus` on one core (:func:`on_one_core`): every code on that core; ``[]`` where :func:`one_core` is
+    ``None``. A process of several cores cannot stand for one: a device of it runs part of its program on the other
+    cores, and its threads restricted to one core afterwards wait for each other."""
+    code = (
+        "import json, sys\n"
+        "from jdpim.bench.speed import versus\n"
+        "rows = versus(int(sys.argv[1]), float(sys.argv[2]), int(sys.argv[3]), log=lambda s: print(s, flush=True))\n"
+        "json.dump(rows, open(sys.argv[4], 'w'))\n"
+    )
+    log(f"[speed] one core: core {one_core()} alone, in a new process")
+    rows = on_one_core(code, str(n_paths), repr(float(t_end)), str(repeats))
+    if rows is None:
+        log("[speed] one core: not measured (this process cannot be restricted to one of several cores)")
+    return rows or []
+
+
 def run_versus(out: pathlib.Path, *, quick: bool = False, note: str | None = None, log=print) -> list[str]:
     """:func:`versus` at 1e4 paths (and 1e5 unless ``quick``) to t = 20 s (``quick``) or 50 s, 5 rounds;
     writes ``versus.json`` and ``versus.md`` (``versus_quick.*``) under ``out``, with ``note`` in the record."""
@@ -367,17 +420,18 @@ def run_versus(out: pathlib.Path, *, quick: bool = False, note: str | None = Non
     rows = []
     for n in sizes:
         log(f"[speed] interleaved: {n} paths to t = {t_end:g} s ...")
-        rows += versus(n, t_end, 5, log=log)
+        rows += versus_on_one_core(n, t_end, 5, log=log) + versus(n, t_end, 5, log=log)
     rec = record(
         "each configuration compiled ahead of time (compile_s, apart) and run once to warm up; then 5 rounds, each "
         "running every configuration once in turn (interleaved); the median wall time of the rounds (median_s) "
         "and the median process CPU time (cpu_s, all threads); the clock covers the whole run and the transfer "
-        "of the final states"
+        "of the final states; the rows of one core ran so in a process of their own, restricted to one core "
+        "before JAX started"
     )
     if note:
         rec["note"] = note
     info = {"record": rec, "scene": {"alpha": ALPHA, "gamma": GAMMA, "r": R, "D": D, "dt": DT}, "rows": rows}
-    cols = ["code", "impacts", "devices", "n_paths", "n_steps", "compile_s", "median_s", "cpu_s"]
+    cols = ["code", "impacts", "cores", "devices", "n_paths", "n_steps", "compile_s", "median_s", "cpu_s"]
     cols += ["path_steps_per_s", "x_plain_scan", "x_numpy"]
     lines = record_lines(rec) + [
         f"The reference scene (alpha = gamma = 0.03, r = 0.98, D = 0.03, dt = {DT:g} s) from rest, float32: "
@@ -386,7 +440,9 @@ def run_versus(out: pathlib.Path, *, quick: bool = False, note: str | None = Non
         "jdpim's `impacts`, one layer of impact handling after another: `none`, the oscillator without its barrier; "
         "`mirror`, the mirror rule; `locate, unreached`, located impacts and a barrier at x = "
         f"{UNREACHED_BARRIER:g} that no path reaches (the test in every step, no crossing to resolve); `locate`, the "
-        "reference scene with located impacts (the default).",
+        "reference scene with located impacts (the default). `cores`: the CPU cores the process could use; one "
+        "device of a process with several cores runs part of its program on the others (`cpu_s` above "
+        "`median_s`), so the rows of one core are those of a process restricted to it.",
         "",
         *table_lines(rows, cols),
     ]
