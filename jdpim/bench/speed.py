@@ -376,7 +376,7 @@ def one_core() -> int | None:
 
 
 def one_core_env() -> dict:
-    """The environment of :func:`versus_on_one_core`'s process: this one's, with one JAX CPU device."""
+    """The environment of :func:`on_one_core`'s process: this one's, with one JAX CPU device."""
     env = dict(os.environ, JAX_NUM_CPU_DEVICES="1")
     flags = DEVICE_COUNT_FLAG.sub("", env.pop("XLA_FLAGS", "")).strip()
     return env | ({"XLA_FLAGS": flags} if flags else {})
@@ -406,11 +406,11 @@ def versus_on_one_core(n_paths: int, t_end: float, repeats: int, *, log=print) -
         "rows = versus(int(sys.argv[1]), float(sys.argv[2]), int(sys.argv[3]), log=lambda s: print(s, flush=True))\n"
         "json.dump(rows, open(sys.argv[4], 'w'))\n"
     )
-    log(f"[speed] one core: core {one_core()} alone, in a new process")
-    rows = on_one_core(code, str(n_paths), repr(float(t_end)), str(repeats))
-    if rows is None:
+    if one_core() is None:
         log("[speed] one core: not measured (this process cannot be restricted to one of several cores)")
-    return rows or []
+        return []
+    log(f"[speed] one core: core {one_core()} alone, in a new process")
+    return on_one_core(code, str(n_paths), repr(float(t_end)), str(repeats))
 
 
 def run_versus(out: pathlib.Path, *, quick: bool = False, note: str | None = None, log=print) -> list[str]:
