@@ -13,6 +13,7 @@ import pytest
 import jdpim
 from jdpim import exact
 from jdpim._cpu import usable_cores
+from jdpim.bench.processes import device_env
 from jdpim.bench.speed import (
     JAX_KEY_IMPLS,
     UNREACHED_BARRIER,
@@ -21,7 +22,6 @@ from jdpim.bench.speed import (
     numpy_mcs,
     on_one_core,
     one_core,
-    one_core_env,
 )
 
 N_PATHS, T = 20_000, 10.0
@@ -96,7 +96,7 @@ def test_rows_of_one_core_run_on_one_core_with_one_device(monkeypatch):
     device whatever device count this process was given; other XLA flags pass on. Where this process has one core,
     there is nothing to restrict and nothing runs."""
     monkeypatch.setenv("XLA_FLAGS", "--xla_force_host_platform_device_count=2 --xla_cpu_enable_fast_math=false")
-    env = one_core_env()
+    env = device_env(1)
     assert env["JAX_NUM_CPU_DEVICES"] == "1" and env["XLA_FLAGS"] == "--xla_cpu_enable_fast_math=false"
     code = (
         "import json, os, sys\n"

@@ -26,7 +26,7 @@ import time
 
 import numpy as np
 
-from .._cpu import usable_cores
+from .._cpu import DEVICE_COUNT_FLAG, usable_cores
 from .record import record, record_lines, table_lines
 
 
@@ -86,9 +86,17 @@ def core_shares(processes: int, cores_per_process: int) -> list[str]:
     return [",".join(map(str, cores[i * c : (i + 1) * c])) for i in range(processes)]
 
 
+def device_env(devices: int) -> dict:
+    """This process's environment for a new process of ``devices`` JAX CPU devices: ``JAX_NUM_CPU_DEVICES`` set, a
+    device count in ``XLA_FLAGS`` taken out (the other flags kept)."""
+    env = dict(os.environ, JAX_NUM_CPU_DEVICES=str(devices))
+    flags = DEVICE_COUNT_FLAG.sub("", env.pop("XLA_FLAGS", "")).strip()
+    return env | ({"XLA_FLAGS": flags} if flags else {})
+
+
 def _launch(processes: int, devices: int, cores_per_process: int, args: tuple, out: pathlib.Path) -> dict:
     port = _free_port()
-    env = {**os.environ, "JAX_NUM_CPU_DEVICES": str(devices), "JAX_PLATFORMS": "cpu"}
+    env = device_env(devices) | {"JAX_PLATFORMS": "cpu"}
     shares = core_shares(processes, cores_per_process)
     procs = [
         subprocess.Popen(

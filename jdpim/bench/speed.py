@@ -40,13 +40,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._cpu import DEVICE_COUNT_FLAG, usable_cores
+from .._cpu import usable_cores
 from .._excitation import GaussianNodes, SpectralRepresentation
 from .._integrate import ImpactRule
 from .._scene import Scene
 from ..methods._paths import _simulate_chunk, dpim_inputs, monte_carlo_inputs, path_forcing
 from .accuracy import ALPHA, GAMMA, D, R, grids, paper_scene
-from .processes import core_shares
+from .processes import core_shares, device_env
 from .record import record, record_lines, table_lines, write_record
 from .timing import prepared, protocol, timed
 
@@ -375,13 +375,6 @@ def one_core() -> int | None:
     return int(share) if share else None
 
 
-def one_core_env() -> dict:
-    """The environment of :func:`on_one_core`'s process: this one's, with one JAX CPU device."""
-    env = dict(os.environ, JAX_NUM_CPU_DEVICES="1")
-    flags = DEVICE_COUNT_FLAG.sub("", env.pop("XLA_FLAGS", "")).strip()
-    return env | ({"XLA_FLAGS": flags} if flags else {})
-
-
 def on_one_core(code: str, *args: str):
     """Run the Python ``code`` in a new process restricted to :func:`one_core` before JAX starts (so that XLA's
     thread pool has one thread), with one JAX device: ``sys.argv[1:]`` are ``args`` and then the path of a file, to
@@ -392,7 +385,7 @@ def on_one_core(code: str, *args: str):
     with tempfile.TemporaryDirectory() as tmp:
         path = pathlib.Path(tmp) / "result.json"
         bound = f"import os\nos.sched_setaffinity(0, {{{cpu}}})\n" + code  # before JAX starts its thread pool
-        subprocess.run([sys.executable, "-c", bound, *args, str(path)], env=one_core_env(), check=True)
+        subprocess.run([sys.executable, "-c", bound, *args, str(path)], env=device_env(1), check=True)
         return json.loads(path.read_text())
 
 
