@@ -48,8 +48,8 @@ from ._distributions import ANGLE
 from ._evolutionary import AbstractEvolutionarySpectrum
 from ._normals import normal_pair
 from ._pytree import check_int, check_real, pytree_dataclass, static_field
+from ._turns import cos_sin_turns, fractional_multiples
 
-_SQRT2 = math.sqrt(2.0)
 RANDOM_FUNCTIONS = ("cosine", "rayleigh")
 CUTOFF_STEP = 2.0  # default cutoff times dt
 
@@ -493,16 +493,16 @@ def random_function_coefficients(theta: jnp.ndarray, grid: SpectralGrid, mixing:
     Returns:
         shape ``(m, K + 1)``, complex; column ``k`` multiplies ``exp(i w_k t)``, k = 0..K.
     """
-    m_k = jnp.asarray(grid.harmonics(), dtype=theta.dtype)
-    th = theta.reshape(-1, 2)
-    if grid.random_functions == "cosine":
-        X = _SQRT2 * jnp.cos(m_k[None, :] * th[:, :1] + math.pi / 4)
-        Y = _SQRT2 * jnp.cos(m_k[None, :] * th[:, 1:] + math.pi / 4)
+    m_k = grid.harmonics()[None, :]
+    turns = theta.reshape(-1, 2) * (1 / (2 * math.pi))  # (m, 2), in [-1/2, 1/2); a product, as XLA rounds it
+    if grid.random_functions == "cosine":  # sqrt2 cos(x + pi/4) = cos x - sin x
+        (c1, s1), (c2, s2) = (cos_sin_turns(fractional_multiples(turns[:, j : j + 1], m_k)) for j in (0, 1))
+        X, Y = c1 - s1, c2 - s2
     else:  # "rayleigh": Box-Muller pairs, amplitude from Theta1, phase from Theta2
-        u = jnp.mod(m_k[None, :] * (th[:, :1] + math.pi) / (2 * math.pi), 1.0)
-        radius = jnp.sqrt(-2.0 * jnp.log(jnp.maximum(u, jnp.finfo(theta.dtype).tiny)))
-        phase = m_k[None, :] * th[:, 1:]
-        X, Y = radius * jnp.cos(phase), radius * jnp.sin(phase)
+        u = fractional_multiples(turns[:, :1], m_k, offset=0.5)  # frac(m (Theta1 + pi) / 2 pi)
+        radius = jnp.sqrt(-2.0 * jnp.log(jnp.maximum(u, jnp.finfo(u.dtype).eps / 4)))  # u rounded to 0: eps / 4
+        cos, sin = cos_sin_turns(fractional_multiples(turns[:, 1:], m_k))
+        X, Y = radius * cos, radius * sin
     return _mix(X, Y, grid, mixing)
 
 
