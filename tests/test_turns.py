@@ -62,7 +62,7 @@ def test_rayleigh_random_functions_at_a_long_horizon_in_float32():
     turns = theta * np.float32(1 / (2 * math.pi))  # as the float32 code rounds them
 
     def coefficients(theta):
-        c = jax.vmap(lambda t: ex.random_function_coefficients(t, grid, jnp.eye(1, dtype=t.dtype)))(theta)
+        c = jax.jit(jax.vmap(lambda t: ex.random_function_coefficients(t, grid, jnp.eye(1, dtype=t.dtype))))(theta)
         return np.asarray(c[:, 0, 1:], np.complex128) / grid.amplitude()[1:]
 
     c32 = coefficients(jnp.asarray(theta))
