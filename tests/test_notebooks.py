@@ -24,6 +24,7 @@ NOTEBOOKS = sorted((pathlib.Path(__file__).parents[1] / "notebooks").glob("*.ipy
 SLOW = {
     "accuracy": "test_bench_accuracy",
     "design": "test_design",
+    "impact_damper": "test_mdof, test_scenefile_mdof",
     "pounding": "test_pounding, test_fragility",
     "reliability": "test_first_passage_pi::test_elastic_linear_exact_bounds, test_first_passage",
     "sensitivities": "test_gradients, test_sensitivity_estimators",
