@@ -2,9 +2,9 @@
 
 Every notebook's code is checked against the library in the default tier: its cells parse, every jdpim name it uses
 exists, and every call of a jdpim function or class binds to its signature. Running a notebook costs its own process
-and its own programs (15 to 60 CPU-s each): the default tier runs those whose calls the tests do not run elsewhere at
-the same sizes, and the ``slow`` tier (``-m slow``) runs the others, whose computations the default tier checks in
-the tests named in ``SLOW``.
+and its own programs (15 to 60 CPU-s each): the default tier runs the quickstart and the paper's reproduction
+(``jdpim.paper.reproduce``, which no other test runs), and the ``slow`` tier (``-m slow``) runs the others, whose
+computations the default tier checks in the tests named in ``SLOW``.
 """
 
 import ast
