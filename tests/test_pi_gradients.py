@@ -60,7 +60,7 @@ def _three_ways(f, p0):
     ("gamma", "r", "extent"),
     [
         (0.03, 0.1, 5.0),
-        pytest.param(0.03, 0.9, 5.0, marks=pytest.mark.slow),  # cubic weights: the transient test below
+        pytest.param(0.03, 0.9, 5.0, marks=pytest.mark.slow),  # stationary, cubic weights: the adjoint test below
         pytest.param(0.0, 0.3, None, marks=pytest.mark.slow),
         pytest.param(0.03, 0.5, 5.0, marks=pytest.mark.slow),
         pytest.param(0.0, 0.98, 5.0, marks=pytest.mark.slow),
@@ -81,8 +81,9 @@ def test_grad_jacfwd_and_central_differences_agree(gamma, r, extent):
     np.testing.assert_allclose(fwd, fd, rtol=1e-3)
 
 
-# slow: two reported cells of the 16-step adjoint; the default tier runs the same solves (cubic weights, reverse and
-# forward mode against differences) in test_transient_derivatives_agree_with_central_differences
+# slow: two reported cells of the 16-step adjoint with cubic weights; the default tier runs that adjoint with linear
+# weights (test_grad_jacfwd_and_central_differences_agree[0.03-0.1-5.0]) and cubic weights in the transient derivatives
+# (test_transient_derivatives_agree_with_central_differences), each against forward mode and differences
 @pytest.mark.slow
 def test_adjoint_of_a_pointwise_density_converges_where_plain_bicgstab_stalled():
     """Cells where BiCGStab on the one-step adjoint stopped at relative residual 3.6e-4 and 9.8e-2 (NaN gradients);
