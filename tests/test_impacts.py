@@ -241,10 +241,13 @@ def test_first_in_lanes_is_the_first_true_entry_of_each_run(n, lanes):
         np.testing.assert_array_equal(np.asarray(first_in_lanes(jnp.asarray(mask), lanes)), expected)
 
 
-@pytest.mark.parametrize(("m", "size"), [(1, 1), (2, 8), (33, 16), (640, 160), (1000, 1000), (PREFIX_MAX + 1, 64)])
+@pytest.mark.parametrize(
+    ("m", "size"),
+    [(1, 1), (2, 8), (32, 8), (33, 16), (640, 160), (1000, 1000), (PREFIX_MAX, 1024), (PREFIX_MAX + 1, 64)],
+)
 def test_first_true_gives_the_indices_of_nonzero(m, size):
-    """The first ``size`` true entries in order, ``m`` past the last, as ``jnp.nonzero`` gives them: by matrix
-    products up to ``PREFIX_MAX`` entries, by ``jnp.nonzero`` beyond."""
+    """The first ``size`` true entries in order, ``m`` past the last, as NumPy finds them: by population counts up
+    to ``PREFIX_MAX`` entries (one word, several, a partial last word), by ``jnp.nonzero`` beyond."""
     rng = np.random.default_rng(m)
     pick = jax.jit(first_true, static_argnums=1)
     for density in (0.0, 0.02, 0.3, 1.0):

@@ -239,36 +239,36 @@ def first_two(runs):
     return first, second
 
 
-# the most entries first_true counts by matrix products (its second product has (m / PREFIX_BLOCK)**2 entries)
+# the most entries first_true ranks by population counts (its count of the words before each word takes
+# (m / PREFIX_WORD)**2 terms); longer masks take jnp.nonzero
 PREFIX_MAX = 4096
-PREFIX_BLOCK = 32
-
-
-def _triangle(k: int, offset: int):
-    """``(k, k)`` float32, 1 where ``column - row >= offset``: built from indices in the program, not a constant that
-    reverse mode would list among its residuals."""
-    index = jnp.arange(k)
-    return (index[None, :] - index[:, None] >= offset).astype(jnp.float32)
+PREFIX_WORD = 32
 
 
 def first_true(mask, size: int):
     """Indices of the first ``size`` true entries of ``mask`` (``(m,)`` bool) in order, ``m`` past the last: the
     indices of ``jnp.nonzero(mask, size=size, fill_value=m)``.
 
-    Each true entry's rank is its prefix count, taken by two matrix products with triangular matrices of ones (within
-    blocks of ``PREFIX_BLOCK`` entries, then over the blocks' totals; exact: every count is an integer below 2**24),
-    and a scatter puts its index at its rank. ``jnp.nonzero`` takes its prefix counts as XLA's cumulative sum, a
-    tree of some ten kernels on a CPU (measured alone, 640 entries: 2.7 us against 6.0 us per call). Masks of more
-    than ``PREFIX_MAX`` entries take ``jnp.nonzero``: the same indices.
+    Each true entry's rank is its prefix count, from the mask packed into 32-bit words: the population count of
+    its own word below it plus those of the words before it (exact integers); a scatter puts its index at its rank.
+    ``jnp.nonzero`` takes its prefix counts as XLA's cumulative sum, a tree of some ten kernels on a CPU. Measured
+    alone on one CPU core (a loop of calls): 0.16 us per call for 32 entries and 1.2 us for 626, against 0.86 and
+    2.4 us for prefix counts by products with triangular matrices of ones. Masks of more than ``PREFIX_MAX``
+    entries take ``jnp.nonzero``: the same indices.
     """
     m = mask.shape[0]
     if m > PREFIX_MAX:
         return jnp.nonzero(mask, size=size, fill_value=m)[0].astype(jnp.int32)
-    blocks = -(-m // PREFIX_BLOCK)
-    ones = jnp.pad(mask, (0, blocks * PREFIX_BLOCK - m)).reshape(blocks, PREFIX_BLOCK).astype(jnp.float32)
-    within = jnp.dot(ones, _triangle(PREFIX_BLOCK, 0), precision=jax.lax.Precision.HIGHEST)
-    before = jnp.dot(_triangle(blocks, 1).T, within[:, -1], precision=jax.lax.Precision.HIGHEST)
-    rank = (within + before[:, None]).reshape(-1)[:m].astype(jnp.int32) - 1
+    words = -(-m // PREFIX_WORD)
+    bit = jnp.arange(PREFIX_WORD, dtype=jnp.uint32)
+    bits = jnp.pad(mask, (0, words * PREFIX_WORD - m)).reshape(words, PREFIX_WORD).astype(jnp.uint32)
+    packed = jnp.sum(bits << bit[None, :], axis=1, dtype=jnp.uint32)  # (words,): entry i of a word is its bit i
+    counts = jax.lax.population_count(packed).astype(jnp.int32)
+    word = jnp.arange(words)
+    before = jnp.sum(jnp.where(word[None, :] < word[:, None], counts[None, :], 0), axis=1)
+    below = jnp.where(bit == 0, jnp.uint32(0), jnp.uint32(0xFFFFFFFF) >> (PREFIX_WORD - bit))  # bits 0 .. i - 1
+    within = jax.lax.population_count(packed[:, None] & below[None, :]).astype(jnp.int32)
+    rank = (within + before[:, None]).reshape(-1)[:m]
     target = jnp.where(mask, rank, size)  # size: beyond the output, dropped
     return jnp.full((size,), m, jnp.int32).at[target].set(jnp.arange(m, dtype=jnp.int32), mode="drop")
 
