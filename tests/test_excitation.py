@@ -74,6 +74,10 @@ def test_synthesis_rows(n_paths, n_fft):
     assert 1 <= rows <= n_paths
     assert rows == n_paths or rows % ex.SYNTHESIS_ROWS == 0
     assert rows * per_path <= budget + ex.SYNTHESIS_ROWS * per_path  # a block within the device's budget
+    assert rows <= ex.SYNTHESIS_MAX_ROWS  # and of few paths, where each path's arrays are small
+    blocks = -(-n_paths // rows)  # the fewest blocks within both limits: one fewer breaks one
+    fewer = -(-n_paths // max(blocks - 1, 1))
+    assert blocks == 1 or fewer * per_path > budget or fewer > ex.SYNTHESIS_MAX_ROWS
     assert rows < n_paths or n_paths * per_path <= budget + ex.SYNTHESIS_ROWS * per_path
 
 
