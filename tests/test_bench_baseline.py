@@ -13,6 +13,7 @@ import pytest
 import jdpim
 from jdpim import exact
 from jdpim._cpu import usable_cores
+from jdpim.bench.accuracy import paper_scene
 from jdpim.bench.processes import device_env
 from jdpim.bench.speed import (
     JAX_KEY_IMPLS,
@@ -22,7 +23,9 @@ from jdpim.bench.speed import (
     numpy_mcs,
     on_one_core,
     one_core,
+    split,
 )
+from jdpim.methods._paths import dpim_inputs
 
 N_PATHS, T = 20_000, 10.0
 
@@ -108,3 +111,13 @@ def test_rows_of_one_core_run_on_one_core_with_one_device(monkeypatch):
         assert one_core() is None and result is None
     else:
         assert result == [[one_core()], 1]
+
+
+def test_split_times_the_excitation_and_the_integration_apart():
+    """The split runs one chunk's excitation and its integration under that excitation, each on its own (its times
+    are the bench's record, not asserted here)."""
+    scene = paper_scene(2.0, 0.02, jdpim.SpectralRepresentation(), impacts=jdpim.ImpactRule(method="mirror"))
+    rows = dpim_inputs(scene, 64)[0]
+    times = split(scene, rows, "dpim", 1, 3)
+    assert set(times) == {"excitation_s", "integration_s"}
+    assert all(np.isfinite(t) and t >= 0 for t in times.values())

@@ -15,8 +15,8 @@ Reference scene: alpha = gamma = 0.03, r = 0.98, D = 0.03, t_end = 200 s, dt = 0
 Protocol (``timing.timed``): AOT compile (timed apart), one warm-up run, ``repeats`` warm runs, median.
 Each configuration runs on one device, and again on every local device when there are several (as
 ``python -m jdpim.bench`` sets up on a multi-core CPU: one device per core).
-The split times the two stages of one chunk on their own (excitation synthesis; the rest of the
-chunk, mostly integration; spectral forcing only), times the number of chunks, and the densities
+The split times the two stages of one chunk on their own (the excitation's synthesis; the integration under
+that excitation, computed beforehand; spectral forcing only), times the number of chunks, and the densities
 (``Result.pdf`` of x and v on 481 / 961 points at t_end).
 Peak memory is the process's resident high-water mark (``resource.getrusage(...).ru_maxrss``), read
 after each row: it only grows, so a row's figure bounds that row's own peak from above.
@@ -44,7 +44,7 @@ from .._cpu import usable_cores
 from .._excitation import GaussianNodes, SpectralRepresentation
 from .._integrate import ImpactRule
 from .._scene import Scene
-from ..methods._paths import _simulate_chunk, dpim_inputs, monte_carlo_inputs, path_forcing
+from ..methods._paths import dpim_inputs, integrate_forcing, monte_carlo_inputs, path_forcing
 from .accuracy import ALPHA, GAMMA, D, R, grids, paper_scene
 from .processes import core_shares, device_env
 from .record import record, record_lines, table_lines, write_record
@@ -71,21 +71,14 @@ def _median_time(fn, repeats: int) -> float:
 
 
 def split(scene, rows, kind: str, repeats: int, n_chunks: int) -> dict:
-    """Warm median seconds of the excitation and of the integration of one chunk ``rows``, times ``n_chunks``."""
-
-    @jax.jit
-    def excite(scene, rows):
-        return path_forcing(scene, kind, rows)[0]
-
-    @jax.jit
-    def whole(scene, rows):
-        return _simulate_chunk(scene, kind, rows)
-
-    t_exc = _median_time(lambda: excite(scene, rows), repeats)
-    t_all = _median_time(lambda: whole(scene, rows), repeats)
+    """Warm median seconds of the excitation of one chunk ``rows`` and of its integration under that excitation
+    (computed once beforehand), each timed on its own, times ``n_chunks``."""
+    excite = jax.jit(lambda scene, rows: path_forcing(scene, kind, rows))
+    integrate = jax.jit(integrate_forcing)
+    forcing, rand = excite(scene, rows)
     return {
-        "excitation_s": round(n_chunks * t_exc, 4),
-        "integration_s": round(n_chunks * max(t_all - t_exc, 0.0), 4),
+        "excitation_s": round(n_chunks * _median_time(lambda: excite(scene, rows), repeats), 4),
+        "integration_s": round(n_chunks * _median_time(lambda: integrate(scene, forcing, rand), repeats), 4),
     }
 
 
@@ -523,7 +516,9 @@ def run_speed(out: pathlib.Path, *, quick: bool = False, log=print) -> list[str]
     info = {
         "record": record(
             protocol("3" if quick else "3 (once at 1e5 paths)")
-            + "; the densities (densities_s) timed apart; the NumPy and plain JAX baselines: one warm-up run, "
+            + "; the densities (densities_s) timed apart; excitation_s and integration_s (one device, spectral "
+            + "forcing): one chunk's excitation and its integration under that excitation, each timed on its own, "
+            + "times the number of chunks; the NumPy and plain JAX baselines: one warm-up run, "
             + ("then 3 timed runs over 2000 steps, the median" if quick else "then 3 timed runs (NumPy: once at 1e5)")
         ),
         "scene": {"alpha": ALPHA, "gamma": GAMMA, "r": R, "D": D, "t_end": T_END, "dt": DT},
