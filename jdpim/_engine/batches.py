@@ -133,10 +133,14 @@ def resolve_batch(eng: Engine, packing: Packing, rows, wide):
     """Up to ``max_impacts`` impacts of each of the batch's paths: ``(k, 2 d)`` end states (``wide``: every
     round on every row, without branches)."""
     b0, t0, b1, be, br, bh, held_columns = unpack(packing, rows)
-    if eng.sticking:  # its paths at rest start where the force pulls them off
+    if eng.sticking:  # its paths at rest start where the force pulls them off (a compact batch: if it holds one)
         resting = each(rests, eng)(*b0, br)
-        *moved, t0 = from_rest(eng, *b0, be, br, bh)
-        b1 = tuple(jnp.where(along_paths(resting, a), a, b) for a, b in zip(moved, b1, strict=True))
+
+        def restart(b1):
+            *moved, tau = from_rest(eng, *b0, be, br, bh)
+            return tuple(jnp.where(along_paths(resting, a), a, b) for a, b in zip(moved, b1, strict=True)), tau
+
+        b1, t0 = restart(b1) if wide else jax.lax.cond(jnp.any(resting), restart, lambda b1: (b1, t0), b1)
     if eng.holding:
         return jnp.concatenate(resolve_batch_held(eng, b0, t0, b1, be, br, bh, held_columns, wide), axis=1)
     last = jnp.full(t0.shape, -1, jnp.int32)
