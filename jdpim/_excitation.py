@@ -527,22 +527,32 @@ def _mix(X, Y, grid: SpectralGrid, mixing):
 # on a CPU, the paths of a chunk go through the FFT in blocks whose arrays (the padded spectrum, the FFT's output and
 # its time-major copy) take at most about this many bytes, shared by the CPU's devices (one per core, each running its
 # own blocks), so that they stay in the last-level cache between the FFT and the copy; a block's paths are a multiple
-# of SYNTHESIS_ROWS (XLA's CPU FFT and copies are slower otherwise) and at most SYNTHESIS_MAX_ROWS: blocks of more
-# paths (short records, whose arrays per path are small) are slower, though they fit the cache
+# of SYNTHESIS_ROWS (XLA's CPU FFT and copies are slower otherwise) and at most SYNTHESIS_MAX_ROWS where that adds
+# little redone work: blocks of more paths (short records, whose arrays per path are small) are slower, though they
+# fit the cache, and overlapping blocks redo paths
 SYNTHESIS_BLOCK_BYTES = 24 * 2**20
 SYNTHESIS_ROWS = 16
 SYNTHESIS_MAX_ROWS = 64
 
 
 def synthesis_rows(n_paths: int, m: int, n_fft: int, itemsize: int) -> int:
-    """Paths per block of :func:`synthesize`: the fewest equal blocks of at most ``SYNTHESIS_MAX_ROWS`` paths whose
-    FFT arrays (about ``3 m n_fft`` values of ``itemsize`` bytes per path) fit a device's share of
-    ``SYNTHESIS_BLOCK_BYTES``, rounded up to a multiple of ``SYNTHESIS_ROWS``; every path at once off a CPU (an
-    accelerator's FFT gains from the whole batch)."""
+    """Paths per block of :func:`synthesize`: the fewest equal blocks whose FFT arrays (about ``3 m n_fft`` values of
+    ``itemsize`` bytes per path) fit a device's share of ``SYNTHESIS_BLOCK_BYTES``, and of at most
+    ``SYNTHESIS_MAX_ROWS`` paths where that redoes at most a sixteenth of the paths (blocks overlap at the end),
+    rounded up to a multiple of ``SYNTHESIS_ROWS``; every path at once off a CPU (an accelerator's FFT gains from
+    the whole batch)."""
     if not on_cpu():
         return n_paths
     budget = SYNTHESIS_BLOCK_BYTES // jax.local_device_count()
-    blocks = max(-(-n_paths * 3 * m * n_fft * itemsize // budget), -(-n_paths // SYNTHESIS_MAX_ROWS))
+    blocks = -(-n_paths * 3 * m * n_fft * itemsize // budget)
+    capped = _block_rows(n_paths, max(blocks, -(-n_paths // SYNTHESIS_MAX_ROWS)))
+    if -(-n_paths // capped) * capped - n_paths <= n_paths // 16:
+        return capped
+    return _block_rows(n_paths, blocks)
+
+
+def _block_rows(n_paths: int, blocks: int) -> int:
+    """Rows of ``blocks`` equal blocks of ``n_paths``, rounded up to a multiple of ``SYNTHESIS_ROWS``."""
     rows = -(-n_paths // blocks)
     return min(n_paths, -(-rows // SYNTHESIS_ROWS) * SYNTHESIS_ROWS)
 
