@@ -214,8 +214,7 @@ class SpectralRepresentation(AbstractExcitation):
         """The forcing of the random functions of ``theta`` ``(n, 2 m)``, by one FFT (:func:`spectral_nodes`)."""
         grid = checked_grid(self, scene)
         mixing = scene.noise.mixing().astype(scene.float_dtype)
-        coeffs = jax.vmap(lambda t: random_function_coefficients(t, grid, mixing))(theta)
-        return spectral_nodes(scene, coeffs, grid)
+        return spectral_nodes(scene, theta, grid, jax.vmap(lambda t: random_function_coefficients(t, grid, mixing)))
 
     def from_keys(self, scene, keys) -> ArrayNodes:
         """The forcing of Gaussian coefficients drawn from each path's key ``(n, 2)``, by one FFT
@@ -227,7 +226,7 @@ class SpectralRepresentation(AbstractExcitation):
         def coefficients(key):
             return gaussian_coefficients(jax.random.wrap_key_data(key), scene.n_sources, grid, mixing, dtype)
 
-        return spectral_nodes(scene, jax.vmap(coefficients)(keys), grid)
+        return spectral_nodes(scene, keys, grid, jax.vmap(coefficients))
 
     def values_per_path(self, scene) -> int:
         """The excitation over the FFT grid, for every source."""
@@ -557,43 +556,65 @@ def _block_rows(n_paths: int, blocks: int) -> int:
     return min(n_paths, -(-rows // SYNTHESIS_ROWS) * SYNTHESIS_ROWS)
 
 
-def synthesize(coefficients: jnp.ndarray, grid: SpectralGrid) -> jnp.ndarray:
+def synthesize(inputs, grid: SpectralGrid, coefficients_of: Callable | None = None) -> jnp.ndarray:
     """Excitation on the half-step grid for a batch of paths, by one inverse real FFT per path.
 
-    On a CPU the paths go through the FFT in blocks of :func:`synthesis_rows` (a ``fori_loop``), each block written
-    into the time-major result; each path's values are those of one FFT over the whole batch, bit for bit (the FFT
-    transforms every path apart). The last block starts ``n_paths - rows`` paths in, so it may redo paths of the
-    block before it, with the same values.
+    On a CPU the paths go through the FFT in blocks of :func:`synthesis_rows` (a ``fori_loop``), each block's
+    coefficients computed from its rows of ``inputs`` into the block's spectrum and its FFT written into the
+    time-major result: a chunk's coefficients are never held at once (a fresh buffer of that size costs its pages'
+    first touch in every run, as much as computing them). Each path's values are those of one FFT over the whole
+    batch, bit for bit (the FFT transforms every path apart). The last block starts ``n_paths - rows`` paths in, so
+    it may redo paths of the block before it, with the same values.
 
     Args:
-        coefficients: shape ``(n_paths, m, K + 1)``, complex (k = 0..K).
+        inputs: the coefficients, shape ``(n_paths, m, K + 1)``, complex (k = 0..K); or, with
+            ``coefficients_of``, the per-path inputs it maps to them (an array or pytree of arrays of leading
+            axis ``n_paths``).
         grid: the spectral grid.
+        coefficients_of: ``None``, or a function of a block of rows of ``inputs`` giving their coefficients
+            ``(rows, m, K + 1)``, row by row.
 
     Returns:
         ``xi(t_j)`` at ``t_j = j dt / 2``, j = 0..2 n_steps, time-major: shape ``(n_half, n_paths, m)``.
     """
-    n_paths, m, _ = coefficients.shape
-    rows = synthesis_rows(n_paths, m, grid.n_fft, coefficients.real.dtype.itemsize)
+    coefficients_of = (lambda c: c) if coefficients_of is None else coefficients_of
+    n_paths = jax.tree_util.tree_leaves(inputs)[0].shape[0]
+    shape = jax.eval_shape(coefficients_of, inputs)
+    m, dtype = shape.shape[1], jnp.finfo(shape.dtype).dtype
+    rows = synthesis_rows(n_paths, m, grid.n_fft, dtype.itemsize)
     if rows == n_paths:
-        return _synthesize_block(coefficients, grid)
+        return _synthesize_block(coefficients_of(inputs), grid)
 
-    def one_block(b, x):
+    def one_block(b, carry):
+        x, spectrum = carry
         start = jnp.minimum(b * rows, n_paths - rows)
-        block = jax.lax.dynamic_slice_in_dim(coefficients, start, rows, axis=0)
-        return jax.lax.dynamic_update_slice_in_dim(x, _synthesize_block(block, grid), start, axis=1)
+        block = jax.tree_util.tree_map(lambda a: jax.lax.dynamic_slice_in_dim(a, start, rows, axis=0), inputs)
+        spectrum = jax.lax.dynamic_update_slice(spectrum, _doubled_dc(coefficients_of(block)), (0, 0, 0))
+        return jax.lax.dynamic_update_slice_in_dim(x, _irfft_time_major(spectrum, grid), start, axis=1), spectrum
 
-    x = jnp.zeros((grid.n_half, n_paths, m), coefficients.real.dtype)
-    return jax.lax.fori_loop(0, -(-n_paths // rows), one_block, x)
+    x = jnp.zeros((grid.n_half, n_paths, m), dtype)
+    spectrum = jnp.zeros((rows, m, grid.n_fft // 2 + 1), shape.dtype)  # its bins above K stay zero
+    return jax.lax.fori_loop(0, -(-n_paths // rows), one_block, (x, spectrum))[0]
+
+
+def _doubled_dc(coefficients: jnp.ndarray) -> jnp.ndarray:
+    """``coefficients`` ``(..., K + 1)`` with the bin k = 0 doubled: ``irfft`` halves the (real) DC bin relative to
+    the others."""
+    dc = jnp.where(jnp.arange(coefficients.shape[-1]) == 0, 2.0, 1.0).astype(coefficients.real.dtype)
+    return coefficients * dc.reshape((1,) * (coefficients.ndim - 1) + dc.shape)
+
+
+def _irfft_time_major(spectrum: jnp.ndarray, grid: SpectralGrid) -> jnp.ndarray:
+    """The half-step samples ``(n_half, rows, m)`` of the spectra ``(rows, m, n_fft // 2 + 1)``."""
+    x = jnp.fft.irfft(spectrum, n=grid.n_fft, axis=-1) * (grid.n_fft / 2)
+    return jnp.moveaxis(jax.lax.slice_in_dim(x, grid.start, grid.start + grid.n_half, axis=-1), -1, 0)
 
 
 def _synthesize_block(coefficients: jnp.ndarray, grid: SpectralGrid) -> jnp.ndarray:
     """:func:`synthesize` of ``coefficients`` ``(rows, m, K + 1)`` in one inverse real FFT: ``(n_half, rows, m)``."""
-    _, _, K1 = coefficients.shape
-    spec = jnp.moveaxis(coefficients, -1, 0)
-    spec = spec.at[0].multiply(2.0)  # irfft halves the (real) DC bin relative to the others
-    spec = jnp.pad(spec, ((0, grid.n_fft // 2 + 1 - K1), (0, 0), (0, 0)))
-    x = jnp.fft.irfft(spec, n=grid.n_fft, axis=0) * (grid.n_fft / 2)
-    return jax.lax.slice_in_dim(x, grid.start, grid.start + grid.n_half, axis=0)
+    K1 = coefficients.shape[-1]
+    spectrum = jnp.pad(_doubled_dc(coefficients), ((0, 0), (0, 0), (0, grid.n_fft // 2 + 1 - K1)))
+    return _irfft_time_major(spectrum, grid)
 
 
 def checked_grid(settings: SpectralRepresentation, scene) -> SpectralGrid:
@@ -606,14 +627,15 @@ def checked_grid(settings: SpectralRepresentation, scene) -> SpectralGrid:
     return grid
 
 
-def spectral_nodes(scene, coefficients: jnp.ndarray, grid: SpectralGrid) -> ArrayNodes:
-    """The forcing of a batch of paths with spectral ``coefficients`` ``(n, m, K + 1)``: one FFT (:func:`synthesize`),
-    or under the noise's evolutionary spectrum :func:`synthesize_evolutionary` (:class:`ShapedNodes`)."""
+def spectral_nodes(scene, inputs, grid: SpectralGrid, coefficients_of: Callable) -> ArrayNodes:
+    """The forcing of a batch of paths whose spectral coefficients ``(n, m, K + 1)`` are ``coefficients_of(inputs)``
+    (row by row, ``inputs`` of leading axis ``n``): one FFT (:func:`synthesize`), or under the noise's evolutionary
+    spectrum :func:`synthesize_evolutionary` (:class:`ShapedNodes`)."""
     dtype = scene.float_dtype
     spectrum = scene.noise.spectrum
     if spectrum is None:
-        return ArrayNodes(synthesize(coefficients, grid).astype(dtype))
-    return ShapedNodes(synthesize_evolutionary(coefficients, grid, spectrum, 0.5 * scene.dt, dtype))
+        return ArrayNodes(synthesize(inputs, grid, coefficients_of).astype(dtype))
+    return ShapedNodes(synthesize_evolutionary(coefficients_of(inputs), grid, spectrum, 0.5 * scene.dt, dtype))
 
 
 BASIS_VALUES = 2**20  # most values of one block of the evolutionary basis (times by harmonics)

@@ -51,6 +51,18 @@ def test_synthesis_in_blocks_equals_one_fft(grid, monkeypatch):
     np.testing.assert_array_equal(blocked, whole)
 
 
+def test_synthesis_computes_each_blocks_coefficients_as_the_whole_batchs(grid, monkeypatch):
+    """With a function of the paths' inputs, each block computes its own coefficients: the same values, bit for bit,
+    as the coefficients of every path computed first (DPIM's random functions, 3 blocks of 16 rows for 40 paths)."""
+    theta = jnp.asarray(np.random.default_rng(2).uniform(-np.pi, np.pi, (40, 2)), jnp.float32)
+    of = jax.vmap(lambda t: ex.random_function_coefficients(t, grid, jnp.eye(1)))
+    monkeypatch.setattr(ex, "SYNTHESIS_BLOCK_BYTES", 16 * 3 * grid.n_fft * 4 * jax.local_device_count())
+    assert ex.synthesis_rows(40, 1, grid.n_fft, 4) == 16
+    by_blocks = np.asarray(jax.jit(lambda t: ex.synthesize(t, grid, of))(theta))
+    whole = np.asarray(jax.jit(lambda t: ex.synthesize(of(t), grid))(theta))
+    np.testing.assert_array_equal(by_blocks, whole)
+
+
 def test_synthesis_in_blocks_is_differentiated_as_one_fft(grid, monkeypatch):
     c = _random_coefficients(40, grid, seed=1)
     monkeypatch.setattr(ex, "SYNTHESIS_BLOCK_BYTES", 16 * 3 * grid.n_fft * 4 * jax.local_device_count())
