@@ -562,7 +562,7 @@ def synthesize(inputs, grid: SpectralGrid, coefficients_of: Callable | None = No
     On a CPU the paths go through the FFT in blocks of :func:`synthesis_rows` (a ``fori_loop``), each block's
     coefficients computed from its rows of ``inputs`` into the block's spectrum and its FFT written into the
     time-major result: a chunk's coefficients are never held at once (a fresh buffer of that size costs its pages'
-    first touch in every run, as much as computing them). Each path's values are those of one FFT over the whole
+    first touch in every run). Each path's values are those of one FFT over the whole
     batch, bit for bit (the FFT transforms every path apart). The last block starts ``n_paths - rows`` paths in, so
     it may redo paths of the block before it, with the same values.
 
