@@ -13,6 +13,7 @@ import pytest
 import jdpim
 from jdpim import exact
 from jdpim._cpu import usable_cores
+from jdpim.bench import timing
 from jdpim.bench.accuracy import paper_scene
 from jdpim.bench.processes import device_env
 from jdpim.bench.speed import (
@@ -25,6 +26,7 @@ from jdpim.bench.speed import (
     one_core,
     split,
 )
+from jdpim.bench.timing import interleaved
 from jdpim.methods._paths import dpim_inputs
 
 N_PATHS, T = 20_000, 10.0
@@ -111,6 +113,27 @@ def test_rows_of_one_core_run_on_one_core_with_one_device(monkeypatch):
         assert one_core() is None and result is None
     else:
         assert result == [[one_core()], 1]
+
+
+def test_interleaved_runs_warm_up_once_then_rounds_in_turn(monkeypatch):
+    """``interleaved`` runs every configuration once to warm up, then ``repeats`` rounds of each once in turn, and
+    takes each one's median over its rounds (the warm-up excluded), of wall and process CPU time alike."""
+    calls, clock = [], iter(range(1000))
+    monkeypatch.setattr(timing.time, "perf_counter", lambda: float(next(clock)))
+    monkeypatch.setattr(timing.time, "process_time", lambda: 0.0)
+    slow = {"a": 0, "b": 5}
+
+    def run(name):
+        def go():
+            calls.append(name)
+            for _ in range(slow[name]):  # b's rounds take five more ticks of the fake clock
+                next(clock)
+
+        return go
+
+    times = interleaved([run("a"), run("b")], 3)
+    assert calls == ["a", "b"] + ["a", "b"] * 3
+    assert [t[0] for t in times] == [1.0, 6.0] and [t[1] for t in times] == [0.0, 0.0]
 
 
 def test_split_times_the_excitation_and_the_integration_apart():

@@ -24,8 +24,8 @@ standard error and the RMS of ``x1``'s difference at ``t_end``.
 
 Speed: Monte Carlo of the impact damper and of the reference one-degree-of-freedom scene (alpha = gamma = 0.03,
 r = 0.98, D = 0.03), the same number of paths and steps and the same forcing (``GaussianNodes``), and the damper with
-its spectral forcing, timed with :func:`.timing.timed` (AOT compile, warm-up, repeats, median); path-steps per second
-per degree of freedom.
+its spectral forcing, interleaved (:func:`.timing.interleaved`: AOT compile, warm-up, rounds, median) on one core and
+on every device; path-steps per second per degree of freedom.
 """
 
 from __future__ import annotations
@@ -38,6 +38,7 @@ import jax
 import numpy as np
 
 from .. import metrics
+from .._cpu import usable_cores
 from .._excitation import GaussianNodes, SpectralRepresentation
 from .._integrate import ImpactRule
 from .._models import VibroImpactOscillator
@@ -45,7 +46,8 @@ from .._noise import WhiteNoise
 from .._scene import Scene
 from ..systems import impact_damper
 from .record import record, record_lines, table_lines
-from .timing import protocol, timed
+from .speed import on_one_core
+from .timing import interleaved, prepared, protocol, timed
 
 CUTOFF = 50.0  # rad/s: w_u dt = 2 at dt = 0.04
 DTS = (0.04, 0.02, 0.01, 0.005)
@@ -177,26 +179,61 @@ def slow_impacts(t_end: float, n: int, t_speed: float, n_speed: int, repeats: in
     return rows
 
 
-def speed(t_end: float, n: int, repeats: int, log=print) -> list[dict]:
-    """Path-steps per second per degree of freedom: the impact damper against the reference scene.
-
-    The reference scene and the damper both with Monte Carlo's default forcing (``GaussianNodes``): the engine's cost
-    per degree of freedom, like for like; and the damper with the spectral forcing of the accuracy runs, whose
-    excitation arrays (FFTs, chunks of at most ``CPU_CHUNK_BYTES`` on a CPU) cost more than the steps. Each damper
-    row's ``ratio``: its path-steps per second per degree of freedom over the reference scene's.
-    """
+def speed_scenes(t_end: float) -> list[tuple[str, str, Scene, int]]:
+    """``(name, forcing, scene, degrees of freedom)`` of :func:`speed`'s rows: the reference scene and the impact
+    damper with Monte Carlo's default forcing (``GaussianNodes``), and the damper with its spectral forcing."""
     reference = Scene(VibroImpactOscillator(), noise=WhiteNoise(D=0.03), t_end=t_end, dt=0.01)
     spectral = damper_scene(t_end, 0.01)
     nodes = Scene(spectral.model, noise=spectral.noise, t_end=t_end, dt=0.01, excitation=GaussianNodes())
-    runs = (("reference scene", "nodes", reference, 1), ("impact damper", "nodes", nodes, 2))
-    rows = []
-    for name, forcing, scene, dof in runs + (("impact damper", "spectral", spectral, 2),):
-        _, timing = timed("monte_carlo", scene, n, repeats=repeats)
-        row = {"scene": name, "forcing": forcing, "dof": dof, **timing.row()}
-        row["path_dof_steps_per_s"] = float(f"{timing.path_steps_per_s * dof:.3g}")
-        row["ratio"] = round(row["path_dof_steps_per_s"] / rows[0]["path_dof_steps_per_s"], 3) if rows else 1.0
+    return [
+        ("reference scene", "nodes", reference, 1),
+        ("impact damper", "nodes", nodes, 2),
+        ("impact damper", "spectral", spectral, 2),
+    ]
+
+
+def speed(t_end: float, n: int, repeats: int, log=print) -> list[dict]:
+    """Path-steps per second per degree of freedom: the impact damper against the reference scene, like for like.
+
+    The rows of one core (a process of its own, restricted to one core before JAX started:
+    :func:`.speed.on_one_core`) and of every device of this process (:func:`speed_here`). A single device of a
+    process with several cores runs the reference scene's large kernels on all of them and the damper's small
+    batches of crossing paths on one, so it would not compare the two scenes like for like.
+    """
+    code = (
+        "import json, sys\n"
+        "from jdpim.bench.mdof import speed_here\n"
+        "log = lambda s: print(s, flush=True)\n"
+        "rows = speed_here(float(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3]), log=log)\n"
+        "json.dump(rows, open(sys.argv[4], 'w'))\n"
+    )
+    one = on_one_core(code, repr(float(t_end)), str(n), str(repeats))
+    if one is None:
+        log("[mdof] one core: not measured (this process cannot be restricted to one of several cores)")
+    return (one or []) + speed_here(t_end, n, repeats, log=log)
+
+
+def speed_here(t_end: float, n: int, repeats: int, log=print) -> list[dict]:
+    """The rows of :func:`speed` on every device of this process, interleaved (:func:`.timing.interleaved`): Monte
+    Carlo of ``n`` paths to ``t_end`` of each of :func:`speed_scenes`. Each row's ``ratio``: its path-steps per second
+    per degree of freedom over the reference scene's. The spectral forcing's excitation arrays (an FFT per path,
+    chunks of at most ``CPU_CHUNK_BYTES`` on a CPU) cost more than its steps."""
+    devices = jax.local_devices()
+    configs = []
+    for name, forcing, scene, dof in speed_scenes(t_end):
+        compile_s, run, _ = prepared("monte_carlo", scene, n, devices=devices if len(devices) > 1 else None)
+        configs.append((name, forcing, dof, scene.n_steps, compile_s, run))
+    rows, reference = [], None
+    for (name, forcing, dof, n_steps, compile_s, _), (wall, cpu) in zip(
+        configs, interleaved([c[-1] for c in configs], repeats), strict=True
+    ):
+        rate = n * n_steps * dof / wall
+        reference = reference or rate
+        row = {"scene": name, "forcing": forcing, "dof": dof, "cores": usable_cores(), "devices": len(devices)}
+        row.update(n_paths=n, n_steps=n_steps, compile_s=round(compile_s, 2), median_s=round(wall, 4))
+        row.update(cpu_s=round(cpu, 3), path_dof_steps_per_s=float(f"{rate:.3g}"), ratio=round(rate / reference, 3))
         rows.append(row)
-        log(str(row))
+        log(f"[mdof] {row}")
     return rows
 
 
@@ -214,7 +251,13 @@ def run_mdof(out: pathlib.Path, *, quick: bool = False, log=print) -> list[str]:
     fast = speed(50.0, 10_000, 3, log=log) if quick else speed(200.0, 100_000, 3, log=log)
     out.mkdir(parents=True, exist_ok=True)
     stem = "mdof_quick" if quick else "mdof"
-    rec = record(protocol("3 (speed rows; the mirroring rows without the warm-up run; the accuracy rows once)"))
+    rec = record(
+        protocol("3 (the mirroring rows, without the warm-up run; the accuracy rows once)")
+        + "; the speed rows: each configuration compiled ahead of time and run once to warm up, then 3 rounds, each "
+        "running every configuration once in turn (interleaved), the median wall time (median_s) and process CPU "
+        "time (cpu_s); the rows of one core ran so in a process of their own, restricted to one core before JAX "
+        "started"
+    )
     data = {"record": rec, "convergence": conv, "common_noise_convergence": common, "slow_impacts": slow, "speed": fast}
     (out / f"{stem}.json").write_text(json.dumps(data, indent=1))
     text = (
@@ -228,7 +271,7 @@ def run_mdof(out: pathlib.Path, *, quick: bool = False, log=print) -> list[str]:
         + "float64) against every impact located\n\n"
         + _table(slow)
         + "\n\nMonte Carlo speed, impact damper against the reference scene (same paths and steps; ratio: path-steps "
-        + "per second per degree of freedom over the reference scene's)\n\n"
+        + "per second per degree of freedom over the reference scene's on the same cores and devices)\n\n"
         + _table(fast)
         + "\n"
     )

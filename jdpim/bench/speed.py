@@ -48,7 +48,7 @@ from ..methods._paths import dpim_inputs, integrate_forcing, monte_carlo_inputs,
 from .accuracy import ALPHA, GAMMA, D, R, grids, paper_scene
 from .processes import core_shares, device_env
 from .record import record, record_lines, table_lines, write_record
-from .timing import prepared, protocol, timed
+from .timing import interleaved, prepared, protocol, timed
 
 T_END, DT = 200.0, 0.01
 BASELINE_BATCHES = (1_000, 10_000, 100_000)
@@ -326,18 +326,10 @@ def versus(n_paths: int, t_end: float, repeats: int, *, log=print) -> list[dict]
         for impacts, scene in layers(t_end):
             compile_s, run, _ = prepared("monte_carlo", scene, n_paths, devices=None if len(devices) == 1 else devices)
             configs.append(("jdpim monte_carlo", impacts, len(devices), compile_s, run))
-    for *_, run in configs:
-        run()
-    wall, cpu = [[] for _ in configs], [[] for _ in configs]
-    for _ in range(repeats):
-        for i, (*_, run) in enumerate(configs):
-            t0, c0 = time.perf_counter(), time.process_time()
-            run()
-            wall[i].append(time.perf_counter() - t0)
-            cpu[i].append(time.process_time() - c0)
     rows = []
-    for (code, impacts, n_dev, compile_s, _), w, c in zip(configs, wall, cpu, strict=True):
-        median = statistics.median(w)
+    for (code, impacts, n_dev, compile_s, _), (median, cpu) in zip(
+        configs, interleaved([c[-1] for c in configs], repeats), strict=True
+    ):
         rows.append(
             {
                 "code": code,
@@ -348,7 +340,7 @@ def versus(n_paths: int, t_end: float, repeats: int, *, log=print) -> list[dict]
                 "n_steps": n_steps,
                 "compile_s": round(compile_s, 2) if code != "numpy" else None,
                 "median_s": round(median, 3),
-                "cpu_s": round(statistics.median(c), 3),
+                "cpu_s": round(cpu, 3),
                 "path_steps_per_s": float(f"{n_paths * n_steps / median:.3g}"),
             }
         )

@@ -91,6 +91,22 @@ def prepared(method: str, scene: Scene, n: int, *, seed: int = 0, points=None, c
     return compile_s, lambda: jax.block_until_ready(compiled(scene, rows)), finish
 
 
+def interleaved(runs, repeats: int) -> list[tuple[float, float]]:
+    """The median wall time and the median process CPU time (s, every thread) of each of ``runs`` (callables):
+    each run once to warm up, then ``repeats`` rounds that run every one once in turn, so that a load that comes
+    and goes weighs on all alike."""
+    for run in runs:
+        run()
+    wall, cpu = [[] for _ in runs], [[] for _ in runs]
+    for _ in range(max(1, repeats)):
+        for i, run in enumerate(runs):
+            t0, c0 = time.perf_counter(), time.process_time()
+            run()
+            wall[i].append(time.perf_counter() - t0)
+            cpu[i].append(time.process_time() - c0)
+    return [(statistics.median(w), statistics.median(c)) for w, c in zip(wall, cpu, strict=True)]
+
+
 def timed(
     method: str,
     scene: Scene,
