@@ -120,3 +120,51 @@ def test_blocks_are_equal_so_that_a_run_just_over_one_block_pads_little(capsys):
     streamed = run_paths(SCENE, rows, kind="monte_carlo", chunk_size=chunk, progress=True)
     np.testing.assert_array_equal(np.asarray(streamed), whole)
     assert "72/136 paths" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "flags, expected",
+    [
+        (None, "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold={n}"),
+        (
+            "--xla_force_host_platform_device_count=2",
+            "--xla_force_host_platform_device_count=2 "
+            "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold={n}",
+        ),
+        (
+            "--xla_backend_extra_options=other=1 --xla_cpu_enable_fast_math=false",
+            "--xla_backend_extra_options=other=1,xla_cpu_small_while_loop_byte_threshold={n} "
+            "--xla_cpu_enable_fast_math=false",
+        ),
+        ("--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1024", None),  # one's own value kept
+    ],
+)
+def test_small_loops_are_asked_as_kernels_in_xla_flags_before_jax_starts(monkeypatch, flags, expected):
+    """``small_loops_as_kernels`` adds XLA's small-loop option to ``XLA_FLAGS`` (merged into extra options already
+    there), keeps a value already set, and changes nothing once JAX has started (XLA has read its flags then)."""
+    from jdpim import _cpu
+
+    if flags is None:
+        monkeypatch.delenv("XLA_FLAGS", raising=False)
+    else:
+        monkeypatch.setenv("XLA_FLAGS", flags)
+    monkeypatch.setattr(_cpu, "jax_started", lambda: False)
+    assert _cpu.small_loops_as_kernels()
+    assert os.environ["XLA_FLAGS"] == (flags if expected is None else expected.format(n=_cpu.SMALL_LOOP_BYTES))
+    monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_enable_fast_math=false")
+    monkeypatch.setattr(_cpu, "jax_started", lambda: True)
+    assert not _cpu.small_loops_as_kernels()
+    assert os.environ["XLA_FLAGS"] == "--xla_cpu_enable_fast_math=false"
+
+
+def test_importing_jdpim_lets_xla_emit_a_small_loop_as_one_kernel():
+    """In this process (as in a user's, where jdpim is imported before JAX computes) a loop over a few hundred values
+    is one kernel, ``xla_cpu_small_call``, and one over more than ``SMALL_LOOP_BYTES`` a loop of kernels."""
+    from jdpim._cpu import SMALL_LOOP_BYTES
+
+    def loop(x):
+        return jax.lax.fori_loop(0, 3, lambda i, y: jax.numpy.sin(y) * 1.5 + jax.numpy.cumsum(y), x)
+
+    small = jax.jit(loop).lower(jax.numpy.ones(256)).compile().as_text()
+    large = jax.jit(loop).lower(jax.numpy.ones(SMALL_LOOP_BYTES // 2)).compile().as_text()
+    assert "xla_cpu_small_call" in small and "xla_cpu_small_call" not in large
