@@ -13,7 +13,6 @@ from . import statistics as statistics
 from . import systems as systems
 from . import tracking as tracking
 from ._checkpoint import Checkpoint as Checkpoint
-from ._cpu import small_loops_as_kernels
 from ._cpu import use_cpu_cores as use_cpu_cores
 from ._distributions import LogNormal as LogNormal
 from ._distributions import Normal as Normal
@@ -124,6 +123,3 @@ _io.allow(
     Pathwise, LikelihoodRatio, NoiseScaling, CentralDifference,
 )  # fmt: skip
 _io.allow(EvolutionaryKanaiTajimi, EvolutionarySpectrum)  # evolve
-
-# importing jdpim starts no JAX backend, so XLA has not read its flags yet unless JAX ran before (docs/speed.md)
-small_loops_as_kernels()

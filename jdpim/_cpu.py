@@ -15,12 +15,6 @@ import jax
 from ._pytree import check_int
 
 DEVICE_COUNT_FLAG = re.compile(r"--xla_force_host_platform_device_count=(\d+)")
-EXTRA_OPTIONS_FLAG = re.compile(r"--xla_backend_extra_options=(\S*)")
-SMALL_LOOP_OPTION = "xla_cpu_small_while_loop_byte_threshold"
-# bytes: a while loop of XLA's CPU compiler that touches fewer is emitted as one kernel (XLA's default: 1 kB); the
-# rounds of impacts of a compact batch of up to 256 crossing paths (chunks of 16384) touch less, a loop over every
-# path of such a chunk more
-SMALL_LOOP_BYTES = 2 * 2**20
 
 
 def on_cpu() -> bool:
@@ -34,43 +28,6 @@ def usable_cores() -> int:
     if hasattr(os, "sched_getaffinity"):
         return len(os.sched_getaffinity(0))
     return os.cpu_count() or 1
-
-
-def jax_started() -> bool:
-    """Whether JAX has started its backends, and so XLA has read its flags (``True`` where it cannot tell)."""
-    try:
-        from jax._src import xla_bridge
-
-        return bool(xla_bridge.backends_are_initialized())
-    except (ImportError, AttributeError):
-        return True
-
-
-def small_loops_as_kernels() -> bool:
-    """Let XLA's CPU compiler emit every while loop that touches fewer than ``SMALL_LOOP_BYTES`` bytes as one kernel.
-
-    Otherwise XLA runs a loop kernel by kernel, each iteration several kernels of a few hundred elements, and their
-    launches cost more than their work: the rounds of impacts of a batch of crossing paths, one such loop in every
-    step with a crossing, take a quarter of the impact damper's time and some 5 % of the reference scene's
-    (docs/speed.md). XLA reads the option (``--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=N``)
-    from ``XLA_FLAGS`` once, when JAX starts its backends; ``import jdpim`` adds it there unless JAX has started
-    or ``XLA_FLAGS`` sets it already (a value of one's own is kept; 1024 is XLA's default). Returns whether
-    ``XLA_FLAGS`` holds the option.
-    """
-    flags = os.environ.get("XLA_FLAGS", "")
-    if SMALL_LOOP_OPTION in flags:
-        return True
-    if jax_started():
-        return False
-    option = f"{SMALL_LOOP_OPTION}={SMALL_LOOP_BYTES}"
-    extra = EXTRA_OPTIONS_FLAG.search(flags)
-    if extra is None:
-        flags = f"{flags} --xla_backend_extra_options={option}".strip()
-    else:
-        options = f"{extra.group(1)},{option}" if extra.group(1) else option
-        flags = f"{flags[: extra.start()]}--xla_backend_extra_options={options}{flags[extra.end() :]}"
-    os.environ["XLA_FLAGS"] = flags
-    return True
 
 
 def use_cpu_cores(n: int | None = None) -> int:

@@ -9,7 +9,6 @@ import jax
 import jax.numpy as jnp
 import pytest
 
-from jdpim._cpu import SMALL_LOOP_BYTES
 from jdpim.bench.kernels import call_groups, kernels_of, run_kernels
 
 
@@ -36,7 +35,7 @@ def test_a_loop_s_kernels_run_once_per_iteration_under_the_profiler(tmp_path):
     def loop(x):
         return jax.lax.fori_loop(0, 7, lambda i, y: jnp.sin(y) * 1.5 + jnp.cumsum(y), x)
 
-    x = jnp.linspace(0.0, 1.0, SMALL_LOOP_BYTES // 2)  # a loop XLA runs kernel by kernel: larger than a small one
+    x = jnp.linspace(0.0, 1.0, 1000)
     compiled = loop.lower(x).compile()
     kernels = kernels_of(compiled.as_text())
     loops = set(re.findall(r"%([\w.\-]+) = (?:\([^)]*\)|\S+) while\(", compiled.as_text()))
