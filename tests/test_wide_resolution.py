@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 
 import jdpim
-from jdpim._engine import batches, elementwise
+from jdpim._engine import batches, elementwise, one_kernel
 
 
 def _states(scene, n, wide, monkeypatch, **method):
     monkeypatch.setattr(batches, "WIDE_CHUNK", 64 if wide else 2**62)
-    for module in (batches, elementwise):
+    for module in (batches, elementwise, one_kernel):
         monkeypatch.setattr(module, "on_cpu", lambda: False)
     jax.clear_caches()  # the threshold is read when the step is traced
     res = jdpim.solve(scene, jdpim.MonteCarlo(n_samples=n, seed=3, chunk_size=n, **method))
@@ -154,7 +154,7 @@ def test_reverse_mode_through_the_wide_resolution(monkeypatch):
     too), against central differences of the same paths; one program gives the values and the derivative. Linear
     damping: the cubic term's derivatives would only add to the program (a quarter of its compile time)."""
     monkeypatch.setattr(batches, "WIDE_CHUNK", 16)
-    for module in (batches, elementwise):
+    for module in (batches, elementwise, one_kernel):
         monkeypatch.setattr(module, "on_cpu", lambda: False)
     jax.clear_caches()
     scene = _one_dof(jdpim.GaussianNodes(), t_end=0.5, gamma=None, x0=1e-3, v0=-1.0)

@@ -3,13 +3,13 @@ r"""The resolution of a step's crossings: the crossing paths gathered in small b
 A compact batch (:func:`compact`) takes up to :func:`compact_rows` (``ceil(n / 64)``) pending paths, the first two of
 each of ``ceil(n / 32)`` runs of paths (:func:`pending_in_runs`: elementwise, where ``jnp.nonzero`` over every path
 costs more than the resolution), gathers their rows column by column, resolves up to ``max_impacts`` impacts of each on
-these few rows (:func:`resolve_batch`) and scatters their end states back into ``q`` and ``v``. Every loop that runs on
-the batch touches only its small arrays. Compact batches run until none is pending, in a ``while_loop``
-(:func:`until_done`): a step whose crossings fit in one batch runs one, and the loop's control costs one test per
-batch. Derivatives take the same batches as a binary tree of ``fori_loop`` of two iterations whose subtrees are
-skipped once no path is pending (:func:`tree`): its static trip counts (``2**depth`` batches serve any step,
-:func:`compact_depth`) are what reverse mode needs. The resolution is traced once either way. Compact batches serve
-every step of a CPU's chunks, and of an accelerator's chunks of fewer than ``WIDE_CHUNK`` paths.
+these few rows (:func:`resolve_batch`, one kernel on a CPU: :func:`.one_kernel.one_kernel`) and scatters their end
+states back into ``q`` and ``v``. Every loop that runs on the batch touches only its small arrays. Compact batches run
+until none is pending, in a ``while_loop`` (:func:`until_done`): a step whose crossings fit in one batch runs one, and
+the loop's control costs one test per batch. Derivatives take the same batches as a binary tree of ``fori_loop`` of
+two iterations whose subtrees are skipped once no path is pending (:func:`tree`): its static trip counts (``2**depth``
+batches serve any step, :func:`compact_depth`) are what reverse mode needs. The resolution is traced once either way.
+Compact batches serve every step of a CPU's chunks, and of an accelerator's chunks of fewer than ``WIDE_CHUNK`` paths.
 
 An accelerator's chunk of ``WIDE_CHUNK`` paths or more has a wide batch (:func:`wide_first`): up to ``cap``
 (``ceil(n / 16)``, :func:`batch_rows`) crossing paths, taken in order and gathered column by column, every round on
@@ -40,6 +40,7 @@ import jax.numpy as jnp
 from .._cpu import on_cpu
 from .elementwise import along_paths
 from .loops import while_differentiated_as
+from .one_kernel import one_kernel
 from .one_path import Engine, each, from_rest, per_path, resolve, resolve_event, rests, to_locate
 
 # an accelerator's chunks of at least this many paths resolve their crossings in a wide batch first, of a
@@ -303,7 +304,8 @@ def compact(eng: Engine, packing: Packing, columns, carry):
     # the step's ends from the carry: a pending path's are still those of its free step, and the step's own copy
     # would have to outlive the carry's updates (a copy of every path's state in every step)
     columns = columns[: STEP_ENDS.start] + y1 + columns[STEP_ENDS.stop :]
-    end = resolve_batch(eng, packing, jnp.concatenate([c.at[idx].get(mode="clip") for c in columns], axis=1), False)
+    rows = jnp.concatenate([c.at[idx].get(mode="clip") for c in columns], axis=1)
+    end = one_kernel(functools.partial(resolve_batch, eng, packing, wide=False), rows)
     y1 = tuple(y.at[idx].set(part, mode="drop") for y, part in zip(y1, (end[:, :d], end[:, d:]), strict=True))
     todo = todo.at[idx].set(False, mode="drop")
     return y1, todo, jnp.any(todo)
