@@ -9,6 +9,7 @@ import jax
 import jax.numpy as jnp
 import pytest
 
+from jdpim._engine.one_kernel import one_kernel
 from jdpim.bench.kernels import call_groups, kernels_of, run_kernels
 
 
@@ -47,6 +48,30 @@ def test_a_loop_s_kernels_run_once_per_iteration_under_the_profiler(tmp_path):
     groups = call_groups(json.loads(gzip.decompress(path.read_bytes()))["traceEvents"], kernels, n_steps=7)
     assert 7 in [g["calls"] for g in groups]  # the body's kernels, once per iteration
     assert max(g["calls"] for g in groups) == 7
+
+
+def test_a_call_emitted_as_one_kernel_counts_once_per_iteration(tmp_path):
+    """A batch's resolution on a CPU is one call emitted as one kernel (``jdpim._engine.one_kernel``): the profile
+    counts it as one kernel, run once per iteration."""
+
+    def chain(y):
+        return jnp.sqrt(jnp.abs(jnp.sin(y) * 1.5 - y)) + 0.1 * y
+
+    @jax.jit
+    def loop(x):
+        return jax.lax.fori_loop(0, 7, lambda i, y: one_kernel(chain, y) + jnp.cumsum(y), x)
+
+    x = jnp.linspace(0.0, 1.0, 64)
+    compiled = loop.lower(x).compile()
+    text = compiled.as_text()
+    calls = set(re.findall(r"%([\w.\-]+) = (?:\([^)]*\)|\S+) call\(.*xla_cpu_small_call", text))
+    assert len(calls) == 1 and calls <= kernels_of(text)
+    jax.block_until_ready(compiled(x))
+    with jax.profiler.trace(str(tmp_path), create_perfetto_trace=True):
+        jax.block_until_ready(compiled(x))
+    (path,) = pathlib.Path(tmp_path).rglob("perfetto_trace.json.gz")
+    events = json.loads(gzip.decompress(path.read_bytes()))["traceEvents"]
+    assert [(g["calls"], g["kernels"]) for g in call_groups(events, calls, n_steps=7)] == [(7, 1)]
 
 
 @pytest.mark.slow  # the profiler's path through a run: test_a_loop_s_kernels_run_once_per_iteration_under_the_profiler

@@ -104,7 +104,7 @@ def test_the_engine_resolves_compact_batches_in_one_kernel_on_a_cpu_only(monkeyp
 def test_one_kernel_changes_no_state_beyond_its_last_bits(monkeypatch):
     """Monte Carlo states of paths that all cross in their first step, with the resolution as one kernel and as XLA
     fuses it otherwise: bit for bit here. (XLA rounds some operations differently in the two, so that a grazing
-    path's state can move by a unit in the last place, which later impacts amplify: docs/speed.md.)"""
+    path's state can move by a few units in the last place, which later impacts amplify: docs/speed.md.)"""
     scene = jdpim.Scene(
         jdpim.VibroImpactOscillator(), noise=jdpim.WhiteNoise(D=0.08), t_end=T_SMALL, dt=DT_SMALL, x0=1e-3, v0=-1.0
     )

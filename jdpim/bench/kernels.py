@@ -32,13 +32,20 @@ DT = 0.01
 # a profiler's trace keeps this many spans (events of phase "X") and drops the rest (measured: a run of more)
 MAX_SPANS = 1_000_000
 CONTROL_FLOW = ("while", "conditional", "call")
+SMALL_CALL = 'xla_cpu_small_call="true"'
 _INSTRUCTION = re.compile(r"^\s*(?:ROOT )?%?([\w.\-]+) = (?:\([^)]*\)|\S+) ([\w\-]+)\(", re.M)
 
 
 def kernels_of(hlo_text: str) -> set[str]:
     """The names of the kernels of a compiled program's HLO text: its instructions other than loops, conditionals
-    and calls."""
-    return {name for name, opcode in _INSTRUCTION.findall(hlo_text) if opcode not in CONTROL_FLOW}
+    and calls, and the calls that XLA emits as one kernel each (``xla_cpu_small_call``: a batch's resolution on a
+    CPU, ``jdpim._engine.one_kernel``)."""
+    kernels = set()
+    for line in hlo_text.splitlines():
+        match = _INSTRUCTION.match(line)
+        if match and (match.group(2) not in CONTROL_FLOW or SMALL_CALL in line):
+            kernels.add(match.group(1))
+    return kernels
 
 
 def call_groups(events, kernels: set[str], n_steps: int) -> list[dict]:
