@@ -25,7 +25,7 @@ from .._cpu import on_cpu
 # as XLA compiles it otherwise.
 ONE_KERNEL_PRIMITIVES = frozenset(
     """abs acos acosh add and argmax argmin asin asinh atan atan2 atanh bitcast_convert_type broadcast_in_dim cbrt
-    ceil clamp clz concatenate cond convert_element_type copy copy_p cos cosh custom_jvp_call div dot_general
+    ceil clamp clz concatenate cond convert_element_type copy cos cosh custom_jvp_call div dot_general
     dynamic_slice dynamic_update_slice eq erf erf_inv erfc exp exp2 expm1 floor ge gt integer_pow iota is_finite jit
     le lgamma log log1p logistic lt max min mul ne neg nextafter not or pad population_count pow reduce_and
     reduce_max reduce_min reduce_or reduce_prod reduce_sum reduce_xor rem reshape reshard rev round rsqrt scan
