@@ -4,9 +4,9 @@ XLA's CPU runtime runs a program kernel by kernel, and on a batch of a few hundr
 than its work: the resolution of a compact batch of crossing paths is some 45 kernels. XLA emits a call that is tagged
 small (``xla_cpu_small_call``) and kept as a call (``inlineable="false"``) as one kernel, loops and branches included:
 it does so itself for the loops of fewer bytes than a process-wide threshold (docs/speed.md), and the tag does it for
-one function of one program. Its single-kernel emitter does not take every operation (matrix products, sorts and
-calls into XLA's runtime fail to compile in it), so a function is tagged only where every primitive of its jaxpr is
-one that it takes (:data:`ONE_KERNEL_PRIMITIVES`); and derivatives are computed by the function as it is.
+one function of one program. Its single-kernel emitter does not take every operation (matrix products, sorts,
+scatters and calls into XLA's runtime fail to compile in it), so a function is tagged only where every primitive of
+its jaxpr is one that it takes (:data:`ONE_KERNEL_PRIMITIVES`); and derivatives are computed by the function as it is.
 """
 
 from __future__ import annotations
